@@ -1,0 +1,7 @@
+//! aift: fault-tolerant control of robot arms with active inference.
+//!
+//! The crate follows the data flow of the method (see `ARCHITECTURE.md`):
+//! [`plant`] (URDF, physics) -> sensors and faults -> generative model (GP) -> u-AIC estimation and
+//! control -> precision learners and detector -> scenario runner -> reports.
+
+pub mod plant;

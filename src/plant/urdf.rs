@@ -1,0 +1,814 @@
+//! Reading a URDF into an engine-independent, validated [`ArmModel`].
+//!
+//! Our own loader on `urdf-rs` rather than `rapier3d-urdf` (METHOD.md section 8): that crate is
+//! f32-only, ignores `<dynamics>` and the inertial frame's rotation, accepts massless links and
+//! panics on some bad files. Here every defect becomes a typed [`PlantError`] naming the file and
+//! the element.
+//!
+//! Loading happens in three passes:
+//! 1. a streaming XML pass ([`scan`]) that bounds the nesting depth (urdf-rs recurses and would
+//!    overflow the stack, an abort no handler catches), checks every numeric attribute it knows,
+//!    and records which links carry an `<inertial>` (urdf-rs fills a missing one with zeros);
+//! 2. `urdf_rs::read_from_string` for the structure;
+//! 3. validation and the merge of fixed joints into bodies ([`build_model`]).
+
+use std::collections::{HashMap, HashSet, VecDeque};
+use std::path::{Path, PathBuf};
+
+use nalgebra::{Isometry3, Matrix3, Translation3, Unit, UnitQuaternion, Vector3};
+
+use super::PlantError;
+
+/// Deepest XML nesting accepted. Real URDFs nest about 5 levels.
+pub const MAX_XML_DEPTH: usize = 64;
+
+/// Relative tolerance of the inertia triangle inequality (rounding in published tensors).
+const TRIANGLE_TOLERANCE: f64 = 1e-6;
+
+/// Kind of a movable joint.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum JointKind {
+    /// Rotation about the axis, with position limits.
+    Revolute,
+    /// Rotation about the axis without limits.
+    Continuous,
+    /// Translation along the axis.
+    Prismatic,
+}
+
+impl JointKind {
+    /// The URDF name of the kind.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Revolute => "revolute",
+            Self::Continuous => "continuous",
+            Self::Prismatic => "prismatic",
+        }
+    }
+}
+
+/// A movable joint between two bodies.
+#[derive(Clone, Debug)]
+pub struct JointSpec {
+    pub name: String,
+    pub kind: JointKind,
+    /// Index of the parent body in [`ArmModel::bodies`].
+    pub parent_body: usize,
+    /// Index of the child body in [`ArmModel::bodies`].
+    pub child_body: usize,
+    /// The joint frame at q = 0, in the parent body's frame.
+    pub origin: Isometry3<f64>,
+    /// Unit axis in the joint frame.
+    pub axis: Unit<Vector3<f64>>,
+    /// Position limits (lower, upper), if the joint has any.
+    pub limits: Option<(f64, f64)>,
+    /// Largest torque (force) the joint can apply, if given (> 0).
+    pub effort: Option<f64>,
+    /// Velocity limit as written in the file (reported, not enforced).
+    pub velocity_limit: Option<f64>,
+    /// Viscous friction `<dynamics damping>` (N m s/rad), 0 when absent.
+    pub damping: f64,
+    /// Coulomb friction `<dynamics friction>` (N m), 0 when absent.
+    pub friction: f64,
+}
+
+/// A primitive collision shape.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ShapeSpec {
+    Box { half_extents: Vector3<f64> },
+    /// Axis along the shape frame's z, as in URDF.
+    Cylinder { radius: f64, length: f64 },
+    Sphere { radius: f64 },
+    /// Axis along the shape frame's z, as in URDF.
+    Capsule { radius: f64, length: f64 },
+}
+
+/// A collision shape attached to a body.
+#[derive(Clone, Debug)]
+pub struct ColliderSpec {
+    /// The URDF link that declared it.
+    pub link: String,
+    pub shape: ShapeSpec,
+    /// Pose of the shape in its body's frame.
+    pub pose: Isometry3<f64>,
+}
+
+/// A rigid body: one URDF link plus every link merged into it by fixed joints.
+#[derive(Clone, Debug)]
+pub struct BodySpec {
+    /// The URDF link whose frame is the body frame.
+    pub link: String,
+    pub mass: f64,
+    /// Centre of mass in the body frame.
+    pub com: Vector3<f64>,
+    /// Inertia tensor about the centre of mass, in body-frame axes.
+    pub inertia: Matrix3<f64>,
+    pub colliders: Vec<ColliderSpec>,
+}
+
+/// Where a URDF link sits: on which body, at which pose.
+#[derive(Clone, Debug)]
+pub struct LinkFrame {
+    pub name: String,
+    pub body: usize,
+    /// The link frame in its body's frame.
+    pub pose: Isometry3<f64>,
+    /// Whether the link declared an `<inertial>` (false: a massless frame).
+    pub has_inertial: bool,
+    /// The link's own mass (0 for a massless frame).
+    pub mass: f64,
+}
+
+/// A validated arm: bodies, movable joints in parent-before-child order, and every link's frame.
+#[derive(Clone, Debug)]
+pub struct ArmModel {
+    pub name: String,
+    /// The file the model came from (for messages).
+    pub source: PathBuf,
+    /// Body 0 is the root, fixed to the world.
+    pub bodies: Vec<BodySpec>,
+    pub joints: Vec<JointSpec>,
+    pub links: Vec<LinkFrame>,
+    /// Things skipped on the way (meshes, ...), for the user to see.
+    pub warnings: Vec<String>,
+}
+
+impl ArmModel {
+    /// Total mass of the moving bodies plus the root.
+    pub fn total_mass(&self) -> f64 {
+        self.bodies.iter().map(|b| b.mass).sum()
+    }
+
+    /// The frame of a link by name.
+    pub fn link(&self, name: &str) -> Option<&LinkFrame> {
+        self.links.iter().find(|l| l.name == name)
+    }
+
+    /// The error for an end-effector link that does not exist.
+    pub fn unknown_link_error(&self, name: &str) -> PlantError {
+        PlantError::UnknownEndEffector {
+            path: self.source.clone(),
+            link: name.to_string(),
+            available: self
+                .links
+                .iter()
+                .map(|l| l.name.as_str())
+                .collect::<Vec<_>>()
+                .join(", "),
+        }
+    }
+}
+
+/// Reads and validates a URDF file.
+pub fn load_urdf(path: &Path) -> Result<ArmModel, PlantError> {
+    let bytes = std::fs::read(path).map_err(|source| PlantError::Unreadable {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let text = String::from_utf8(bytes).map_err(|_| PlantError::NotText {
+        path: path.to_path_buf(),
+    })?;
+    parse_urdf(&text, path)
+}
+
+/// Parses and validates URDF text; `path` is used in messages only.
+pub fn parse_urdf(text: &str, path: &Path) -> Result<ArmModel, PlantError> {
+    if text.trim().is_empty() {
+        return Err(PlantError::Empty {
+            path: path.to_path_buf(),
+        });
+    }
+    if text.contains('\0') {
+        return Err(PlantError::NotText {
+            path: path.to_path_buf(),
+        });
+    }
+    let scanned = scan(text, path)?;
+    let robot = urdf_rs::read_from_string(text).map_err(|e| PlantError::Xml {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })?;
+    build_model(&robot, &scanned, path)
+}
+
+/// What the streaming pass learned beyond the numbers it checked.
+#[derive(Debug, Default)]
+pub(crate) struct Scan {
+    /// Links (top-level `<link>` elements) that contain an `<inertial>`.
+    links_with_inertial: HashSet<String>,
+}
+
+/// Which attributes are numeric, and how many numbers each holds.
+fn numeric_attribute(element: &str, attribute: &str) -> Option<usize> {
+    match (element, attribute) {
+        ("origin", "xyz" | "rpy") => Some(3),
+        ("axis", "xyz") => Some(3),
+        ("box", "size") => Some(3),
+        ("mesh", "scale") => Some(3),
+        ("mass", "value") => Some(1),
+        ("inertia", "ixx" | "ixy" | "ixz" | "iyy" | "iyz" | "izz") => Some(1),
+        ("limit", "lower" | "upper" | "effort" | "velocity") => Some(1),
+        ("dynamics", "damping" | "friction") => Some(1),
+        ("cylinder" | "capsule", "radius" | "length") => Some(1),
+        ("sphere", "radius") => Some(1),
+        _ => None,
+    }
+}
+
+fn line_of(text: &str, byte: usize) -> usize {
+    1 + text.as_bytes()[..byte.min(text.len())]
+        .iter()
+        .filter(|&&b| b == b'\n')
+        .count()
+}
+
+/// The streaming pass: depth bound, numeric attributes, `<inertial>` presence.
+pub(crate) fn scan(text: &str, path: &Path) -> Result<Scan, PlantError> {
+    use quick_xml::events::Event;
+
+    let xml_error = |message: String| PlantError::Xml {
+        path: path.to_path_buf(),
+        message,
+    };
+    let mut reader = quick_xml::Reader::from_str(text);
+    let mut stack: Vec<String> = Vec::new();
+    // (kind, name) of the enclosing top-level link or joint.
+    let mut owner: Option<(&'static str, String)> = None;
+    let mut out = Scan::default();
+    let mut saw_root = false;
+    loop {
+        let position = reader.buffer_position() as usize;
+        let event = reader.read_event().map_err(|e| {
+            xml_error(format!(
+                "near line {}: {e}",
+                line_of(text, reader.error_position() as usize)
+            ))
+        })?;
+        let (element, is_empty) = match &event {
+            Event::Start(e) => (e, false),
+            Event::Empty(e) => (e, true),
+            Event::End(_) => {
+                stack.pop();
+                if stack.len() < 2 {
+                    owner = None;
+                }
+                continue;
+            }
+            Event::Eof => break,
+            _ => continue,
+        };
+        let name = element.name().as_ref().to_string();
+        let depth = stack.len() + 1;
+        if depth > MAX_XML_DEPTH {
+            return Err(PlantError::TooDeep {
+                path: path.to_path_buf(),
+                depth,
+                limit: MAX_XML_DEPTH,
+                line: line_of(text, position),
+            });
+        }
+        if depth == 1 {
+            if name != "robot" {
+                return Err(xml_error(format!(
+                    "the root element is <{name}>, expected <robot>"
+                )));
+            }
+            saw_root = true;
+        }
+        let mut attributes = Vec::new();
+        for attribute in element.attributes() {
+            let attribute = attribute.map_err(|e| {
+                xml_error(format!(
+                    "near line {}: bad attribute in <{name}>: {e}",
+                    line_of(text, position)
+                ))
+            })?;
+            let key = attribute.key.as_ref().to_string();
+            let value = attribute
+                .normalized_value(quick_xml::XmlVersion::Implicit1_0)
+                .map_err(|e| {
+                    xml_error(format!(
+                        "near line {}: bad value of `{key}` in <{name}>: {e}",
+                        line_of(text, position)
+                    ))
+                })?
+                .into_owned();
+            attributes.push((key, value));
+        }
+        if depth == 2 {
+            owner = (name == "link" || name == "joint").then(|| {
+                let own_name = attributes
+                    .iter()
+                    .find(|(k, _)| k == "name")
+                    .map(|(_, v)| v.clone())
+                    .unwrap_or_default();
+                (if name == "link" { "link" } else { "joint" }, own_name)
+            });
+        }
+        if let Some((kind, owner_name)) = &owner {
+            if *kind == "link" && depth == 3 && name == "inertial" {
+                out.links_with_inertial.insert(owner_name.clone());
+            }
+            for (key, value) in &attributes {
+                if let Some(count) = numeric_attribute(&name, key) {
+                    check_numbers(value, count).map_err(|expected| PlantError::BadNumber {
+                        path: path.to_path_buf(),
+                        element: format!(
+                            "{kind} '{owner_name}' <{}>",
+                            stack
+                                .get(2..)
+                                .unwrap_or(&[])
+                                .iter()
+                                .map(String::as_str)
+                                .chain(std::iter::once(name.as_str()))
+                                .collect::<Vec<_>>()
+                                .join("><")
+                        ),
+                        attribute: key.clone(),
+                        value: value.clone(),
+                        expected,
+                    })?;
+                }
+            }
+        }
+        if is_empty {
+            if depth == 2 {
+                owner = None;
+            }
+        } else {
+            stack.push(name);
+        }
+    }
+    if !saw_root {
+        return Err(xml_error("no <robot> element".to_string()));
+    }
+    Ok(out)
+}
+
+/// Checks that `value` holds `count` finite numbers; returns what was expected otherwise.
+fn check_numbers(value: &str, count: usize) -> Result<(), String> {
+    let expected = || {
+        if count == 1 {
+            "a finite number".to_string()
+        } else {
+            format!("{count} finite numbers")
+        }
+    };
+    let mut n = 0;
+    for token in value.split_whitespace() {
+        match token.parse::<f64>() {
+            Ok(v) if v.is_finite() => n += 1,
+            _ => return Err(expected()),
+        }
+    }
+    if n == count { Ok(()) } else { Err(expected()) }
+}
+
+fn isometry(pose: &urdf_rs::Pose) -> Isometry3<f64> {
+    let [x, y, z] = pose.xyz.0;
+    let [r, p, yaw] = pose.rpy.0;
+    // URDF rpy: fixed-axis roll about x, then pitch about y, then yaw about z (R = Rz Ry Rx).
+    Isometry3::from_parts(
+        Translation3::new(x, y, z),
+        UnitQuaternion::from_euler_angles(r, p, yaw),
+    )
+}
+
+/// Validates one link's inertia tensor (in its inertial frame).
+fn check_inertia(tensor: &Matrix3<f64>, link: &str, path: &Path) -> Result<(), PlantError> {
+    let bad = |reason: String| PlantError::BadInertia {
+        path: path.to_path_buf(),
+        link: link.to_string(),
+        reason,
+    };
+    let eig = tensor.symmetric_eigen().eigenvalues;
+    let mut e = [eig[0], eig[1], eig[2]];
+    e.sort_by(f64::total_cmp);
+    if e[0] <= 0.0 {
+        return Err(bad(format!(
+            "is not positive definite (principal moments {:.6e}, {:.6e}, {:.6e})",
+            e[0], e[1], e[2]
+        )));
+    }
+    if e[0] + e[1] < e[2] * (1.0 - TRIANGLE_TOLERANCE) {
+        return Err(bad(format!(
+            "breaks the triangle inequality: principal moments {:.6e} + {:.6e} < {:.6e}",
+            e[0], e[1], e[2]
+        )));
+    }
+    Ok(())
+}
+
+/// Validation and the merge of fixed joints into bodies.
+pub(crate) fn build_model(
+    robot: &urdf_rs::Robot,
+    scanned: &Scan,
+    path: &Path,
+) -> Result<ArmModel, PlantError> {
+    let p = || path.to_path_buf();
+    let mut warnings = Vec::new();
+
+    // Names.
+    let mut link_index: HashMap<&str, usize> = HashMap::new();
+    for (i, link) in robot.links.iter().enumerate() {
+        if link_index.insert(link.name.as_str(), i).is_some() {
+            return Err(PlantError::DuplicateName {
+                path: p(),
+                kind: "link",
+                name: link.name.clone(),
+            });
+        }
+    }
+    let mut joint_names = HashSet::new();
+    for joint in &robot.joints {
+        if !joint_names.insert(joint.name.as_str()) {
+            return Err(PlantError::DuplicateName {
+                path: p(),
+                kind: "joint",
+                name: joint.name.clone(),
+            });
+        }
+    }
+    if robot.links.is_empty() {
+        return Err(PlantError::NoSingleRoot {
+            path: p(),
+            roots_found: 0,
+            roots: "no <link> at all".into(),
+        });
+    }
+
+    // Topology: parent joint of every link.
+    let mut parent_joint: Vec<Option<usize>> = vec![None; robot.links.len()];
+    let mut children: Vec<Vec<usize>> = vec![Vec::new(); robot.links.len()];
+    for (j, joint) in robot.joints.iter().enumerate() {
+        let find = |name: &str, role: &'static str| {
+            link_index
+                .get(name)
+                .copied()
+                .ok_or_else(|| PlantError::UnknownLink {
+                    path: p(),
+                    joint: joint.name.clone(),
+                    role,
+                    link: name.to_string(),
+                })
+        };
+        let parent = find(&joint.parent.link, "parent")?;
+        let child = find(&joint.child.link, "child")?;
+        if parent == child {
+            return Err(PlantError::Cycle {
+                path: p(),
+                joint: joint.name.clone(),
+            });
+        }
+        if let Some(first) = parent_joint[child] {
+            return Err(PlantError::MultipleParents {
+                path: p(),
+                link: joint.child.link.clone(),
+                first: robot.joints[first].name.clone(),
+                second: joint.name.clone(),
+            });
+        }
+        parent_joint[child] = Some(j);
+        children[parent].push(j);
+    }
+    let roots: Vec<usize> = (0..robot.links.len())
+        .filter(|&l| parent_joint[l].is_none())
+        .collect();
+    let root = match roots.as_slice() {
+        [single] => *single,
+        [] => {
+            // Every link has a parent: the joints close a cycle.
+            return Err(PlantError::Cycle {
+                path: p(),
+                joint: robot.joints[0].name.clone(),
+            });
+        }
+        many => {
+            // One tree plus lone links: name the lone link.
+            let trees: Vec<usize> = many
+                .iter()
+                .copied()
+                .filter(|&l| !children[l].is_empty())
+                .collect();
+            if trees.len() == 1 {
+                let lone = many.iter().copied().find(|&l| l != trees[0]).unwrap_or(0);
+                return Err(PlantError::Disconnected {
+                    path: p(),
+                    link: robot.links[lone].name.clone(),
+                    root: robot.links[trees[0]].name.clone(),
+                });
+            }
+            return Err(PlantError::NoSingleRoot {
+                path: p(),
+                roots_found: many.len(),
+                roots: many
+                    .iter()
+                    .map(|&l| format!("'{}'", robot.links[l].name))
+                    .collect::<Vec<_>>()
+                    .join(", "),
+            });
+        }
+    };
+
+    // Breadth-first from the root: bodies, link frames, movable joints.
+    let mut link_body: Vec<Option<(usize, Isometry3<f64>)>> = vec![None; robot.links.len()];
+    link_body[root] = Some((0, Isometry3::identity()));
+    let mut body_links: Vec<Vec<usize>> = vec![vec![root]];
+    let mut body_top: Vec<usize> = vec![root];
+    let mut joints = Vec::new();
+    let mut queue = VecDeque::from([root]);
+    while let Some(link) = queue.pop_front() {
+        let (body, link_pose) = link_body[link].expect("queued links are placed");
+        for &j in &children[link] {
+            let joint = &robot.joints[j];
+            let child = link_index[joint.child.link.as_str()];
+            let origin = link_pose * isometry(&joint.origin);
+            let kind = match joint.joint_type {
+                urdf_rs::JointType::Fixed => None,
+                urdf_rs::JointType::Revolute => Some(JointKind::Revolute),
+                urdf_rs::JointType::Continuous => Some(JointKind::Continuous),
+                urdf_rs::JointType::Prismatic => Some(JointKind::Prismatic),
+                ref other => {
+                    return Err(PlantError::UnsupportedJoint {
+                        path: p(),
+                        joint: joint.name.clone(),
+                        kind: format!("{other:?}").to_lowercase(),
+                    });
+                }
+            };
+            match kind {
+                None => {
+                    link_body[child] = Some((body, origin));
+                    body_links[body].push(child);
+                }
+                Some(kind) => {
+                    let axis = Vector3::from(joint.axis.xyz.0);
+                    let axis = Unit::try_new(axis, 1e-12).ok_or_else(|| PlantError::ZeroAxis {
+                        path: p(),
+                        joint: joint.name.clone(),
+                    })?;
+                    let lim = &joint.limit;
+                    let mut kind = kind;
+                    let limits = match kind {
+                        JointKind::Continuous => None,
+                        _ if lim.lower > lim.upper => {
+                            return Err(PlantError::BadLimit {
+                                path: p(),
+                                joint: joint.name.clone(),
+                                lower: lim.lower,
+                                upper: lim.upper,
+                            });
+                        }
+                        _ if lim.lower == lim.upper
+                            || (!lim.lower.is_finite() && !lim.upper.is_finite()) =>
+                        {
+                            warnings.push(format!(
+                                "joint '{}': no position limits (lower = upper); simulated without limits",
+                                joint.name
+                            ));
+                            if kind == JointKind::Revolute {
+                                kind = JointKind::Continuous;
+                            }
+                            None
+                        }
+                        _ => Some((lim.lower, lim.upper)),
+                    };
+                    let new_body = body_links.len();
+                    body_links.push(vec![child]);
+                    body_top.push(child);
+                    link_body[child] = Some((new_body, Isometry3::identity()));
+                    let dynamics = joint.dynamics.clone().unwrap_or_default();
+                    joints.push(JointSpec {
+                        name: joint.name.clone(),
+                        kind,
+                        parent_body: body,
+                        child_body: new_body,
+                        origin,
+                        axis,
+                        limits,
+                        effort: (lim.effort > 0.0 && lim.effort.is_finite()).then_some(lim.effort),
+                        velocity_limit: (lim.velocity > 0.0 && lim.velocity.is_finite())
+                            .then_some(lim.velocity),
+                        damping: dynamics.damping,
+                        friction: dynamics.friction,
+                    });
+                }
+            }
+            queue.push_back(child);
+        }
+    }
+    // Links not reached from the root: their parent chain loops.
+    if let Some(unreached) = (0..robot.links.len()).find(|&l| link_body[l].is_none()) {
+        let joint = parent_joint[unreached].map_or_else(
+            || robot.links[unreached].name.clone(),
+            |j| robot.joints[j].name.clone(),
+        );
+        return Err(PlantError::Cycle { path: p(), joint });
+    }
+    if joints.is_empty() {
+        return Err(PlantError::NoMovableJoint { path: p() });
+    }
+    for joint in &robot.joints {
+        if joint.joint_type == urdf_rs::JointType::Revolute
+            || joint.joint_type == urdf_rs::JointType::Continuous
+            || joint.joint_type == urdf_rs::JointType::Prismatic
+        {
+            if joint.mimic.is_some() {
+                warnings.push(format!(
+                    "joint '{}': <mimic> ignored; the joint is simulated as independent",
+                    joint.name
+                ));
+            }
+        }
+    }
+
+    // Mass properties and colliders per body; link frames.
+    let mut links = Vec::with_capacity(robot.links.len());
+    let mut bodies = Vec::with_capacity(body_links.len());
+    for (b, members) in body_links.iter().enumerate() {
+        let mut parts: Vec<(f64, Vector3<f64>, Matrix3<f64>)> = Vec::new();
+        let mut colliders = Vec::new();
+        for &l in members {
+            let link = &robot.links[l];
+            let (_, pose) = link_body[l].expect("every link is placed");
+            let has_inertial = scanned.links_with_inertial.contains(&link.name);
+            let mut own_mass = 0.0;
+            if has_inertial {
+                let inertial = &link.inertial;
+                let mass = inertial.mass.value;
+                if !(mass.is_finite() && mass > 0.0) {
+                    return Err(PlantError::BadMass {
+                        path: p(),
+                        link: link.name.clone(),
+                        mass,
+                    });
+                }
+                let i = &inertial.inertia;
+                let tensor = Matrix3::new(
+                    i.ixx, i.ixy, i.ixz, //
+                    i.ixy, i.iyy, i.iyz, //
+                    i.ixz, i.iyz, i.izz,
+                );
+                check_inertia(&tensor, &link.name, path)?;
+                let frame = pose * isometry(&inertial.origin);
+                let rot = frame.rotation.to_rotation_matrix();
+                let rotated = rot.matrix() * tensor * rot.matrix().transpose();
+                parts.push((mass, frame.translation.vector, rotated));
+                own_mass = mass;
+            }
+            for collision in &link.collision {
+                let shape_pose = pose * isometry(&collision.origin);
+                let shape = match &collision.geometry {
+                    urdf_rs::Geometry::Box { size } => ShapeSpec::Box {
+                        half_extents: Vector3::from(size.0) / 2.0,
+                    },
+                    urdf_rs::Geometry::Cylinder { radius, length } => ShapeSpec::Cylinder {
+                        radius: *radius,
+                        length: *length,
+                    },
+                    urdf_rs::Geometry::Capsule { radius, length } => ShapeSpec::Capsule {
+                        radius: *radius,
+                        length: *length,
+                    },
+                    urdf_rs::Geometry::Sphere { radius } => ShapeSpec::Sphere { radius: *radius },
+                    urdf_rs::Geometry::Mesh { filename, .. } => {
+                        warnings.push(format!(
+                            "link '{}': collision mesh {:?} skipped (meshes are not loaded; \
+                             the camera will not see this shape occlude)",
+                            link.name,
+                            sanitize_mesh_name(filename)
+                        ));
+                        continue;
+                    }
+                };
+                let degenerate = match shape {
+                    ShapeSpec::Box { half_extents } => half_extents.min() <= 0.0,
+                    ShapeSpec::Cylinder { radius, length }
+                    | ShapeSpec::Capsule { radius, length } => radius <= 0.0 || length < 0.0,
+                    ShapeSpec::Sphere { radius } => radius <= 0.0,
+                };
+                if degenerate {
+                    warnings.push(format!(
+                        "link '{}': degenerate collision shape skipped",
+                        link.name
+                    ));
+                    continue;
+                }
+                colliders.push(ColliderSpec {
+                    link: link.name.clone(),
+                    shape,
+                    pose: shape_pose,
+                });
+            }
+            links.push(LinkFrame {
+                name: link.name.clone(),
+                body: b,
+                pose,
+                has_inertial,
+                mass: own_mass,
+            });
+        }
+        let mass: f64 = parts.iter().map(|(m, _, _)| m).sum();
+        let (com, inertia) = if mass > 0.0 {
+            let com = parts
+                .iter()
+                .fold(Vector3::zeros(), |acc, (m, c, _)| acc + c * *m)
+                / mass;
+            // Parallel-axis theorem about the body's centre of mass.
+            let inertia = parts.iter().fold(Matrix3::zeros(), |acc, (m, c, i)| {
+                let d = c - com;
+                acc + i + (Matrix3::identity() * d.dot(&d) - d * d.transpose()) * *m
+            });
+            (com, inertia)
+        } else {
+            (Vector3::zeros(), Matrix3::zeros())
+        };
+        if b > 0 && mass <= 0.0 {
+            return Err(PlantError::MasslessBody {
+                path: p(),
+                link: robot.links[body_top[b]].name.clone(),
+            });
+        }
+        bodies.push(BodySpec {
+            link: robot.links[body_top[b]].name.clone(),
+            mass,
+            com,
+            inertia,
+            colliders,
+        });
+    }
+    // Keep links in file order for listing.
+    links.sort_by_key(|l| link_index[l.name.as_str()]);
+
+    Ok(ArmModel {
+        name: robot.name.clone(),
+        source: path.to_path_buf(),
+        bodies,
+        joints,
+        links,
+        warnings,
+    })
+}
+
+/// The mesh file name as it may be shown: never resolved against the file system, so a
+/// `package://` or absolute path cannot make aift read outside the URDF's folder.
+fn sanitize_mesh_name(filename: &str) -> String {
+    filename.chars().filter(|c| !c.is_control()).take(200).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(text: &str) -> Result<ArmModel, PlantError> {
+        parse_urdf(text, Path::new("test.urdf"))
+    }
+
+    const TWO_LINK: &str = r#"<robot name="r">
+      <link name="world"/>
+      <joint name="j1" type="continuous">
+        <parent link="world"/><child link="l1"/><axis xyz="0 -1 0"/>
+      </joint>
+      <link name="l1">
+        <inertial><origin xyz="0.5 0 0"/><mass value="2"/>
+          <inertia ixx="0.01" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/></inertial>
+        <collision><origin xyz="0.5 0 0"/><geometry><box size="1 0.1 0.1"/></geometry></collision>
+      </link>
+      <joint name="tip" type="fixed"><origin xyz="1 0 0"/><parent link="l1"/><child link="ee"/></joint>
+      <link name="ee"/>
+    </robot>"#;
+
+    #[test]
+    fn merges_fixed_links_and_keeps_their_frames() {
+        let m = parse(TWO_LINK).unwrap();
+        assert_eq!(m.bodies.len(), 2);
+        assert_eq!(m.joints.len(), 1);
+        let ee = m.link("ee").unwrap();
+        assert_eq!(ee.body, 1);
+        assert!((ee.pose.translation.vector - Vector3::new(1.0, 0.0, 0.0)).norm() < 1e-15);
+        assert!((m.bodies[1].mass - 2.0).abs() < 1e-15);
+        assert_eq!(m.bodies[1].colliders.len(), 1);
+    }
+
+    #[test]
+    fn rotated_inertial_frame_rotates_the_tensor() {
+        let text = TWO_LINK.replace(
+            r#"<origin xyz="0.5 0 0"/><mass"#,
+            r#"<origin xyz="0.5 0 0" rpy="0 0 1.5707963267948966"/><mass"#,
+        );
+        let m = parse(&text).unwrap();
+        let i = m.bodies[1].inertia;
+        // A quarter turn about z swaps ixx and iyy.
+        assert!((i[(0, 0)] - 1.0).abs() < 1e-12, "{i}");
+        assert!((i[(1, 1)] - 0.01).abs() < 1e-12, "{i}");
+    }
+
+    #[test]
+    fn check_numbers_counts_and_rejects_non_finite() {
+        assert!(check_numbers("1 2 3", 3).is_ok());
+        assert!(check_numbers("1 2", 3).is_err());
+        assert!(check_numbers("nan", 1).is_err());
+        assert!(check_numbers("inf", 1).is_err());
+        assert!(check_numbers("1e3", 1).is_ok());
+    }
+}

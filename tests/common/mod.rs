@@ -1,0 +1,119 @@
+//! Helpers shared by the integration tests: independent references written here, not in src/.
+#![allow(dead_code)]
+
+use std::path::PathBuf;
+
+/// Path of a file in the repository.
+pub fn repo(path: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(path)
+}
+
+/// The paper's 2-DOF arm in closed form (METHOD.md section 1), the oracle for the physics.
+#[derive(Clone, Copy, Debug)]
+pub struct PaperArm {
+    pub l1: f64,
+    pub lc1: f64,
+    pub lc2: f64,
+    pub m1: f64,
+    pub m2: f64,
+    pub i1: f64,
+    pub i2: f64,
+    pub d1: f64,
+    pub d2: f64,
+    pub g: f64,
+}
+
+impl Default for PaperArm {
+    fn default() -> Self {
+        Self {
+            l1: 1.0446,
+            lc1: 0.5451,
+            lc2: 0.5075,
+            m1: 2.1368,
+            m2: 2.2418,
+            i1: 1.0209,
+            i2: 1.0218,
+            d1: 101.519,
+            d2: 103.8566,
+            g: 9.81,
+        }
+    }
+}
+
+impl PaperArm {
+    /// M(q).
+    pub fn mass_matrix(&self, q: [f64; 2]) -> [[f64; 2]; 2] {
+        let c2 = q[1].cos();
+        let m11 = self.i1
+            + self.i2
+            + self.m1 * self.lc1 * self.lc1
+            + self.m2 * (self.l1 * self.l1 + self.lc2 * self.lc2 + 2.0 * self.l1 * self.lc2 * c2);
+        let m12 = self.i2 + self.m2 * (self.lc2 * self.lc2 + self.l1 * self.lc2 * c2);
+        let m22 = self.i2 + self.m2 * self.lc2 * self.lc2;
+        [[m11, m12], [m12, m22]]
+    }
+
+    /// G(q).
+    pub fn gravity(&self, q: [f64; 2]) -> [f64; 2] {
+        let c1 = q[0].cos();
+        let c12 = (q[0] + q[1]).cos();
+        [
+            self.g * (self.m1 * self.lc1 * c1 + self.m2 * (self.lc2 * c12 + self.l1 * c1)),
+            self.g * self.m2 * self.lc2 * c12,
+        ]
+    }
+
+    /// C(q, qd) qd.
+    pub fn coriolis(&self, q: [f64; 2], qd: [f64; 2]) -> [f64; 2] {
+        let h = self.m2 * self.l1 * self.lc2 * q[1].sin();
+        [
+            -h * qd[1] * qd[1] - 2.0 * h * qd[0] * qd[1],
+            h * qd[0] * qd[0],
+        ]
+    }
+
+    /// qdd = M^-1 (tau - C qd - D qd - G).
+    pub fn acceleration(&self, q: [f64; 2], qd: [f64; 2], tau: [f64; 2]) -> [f64; 2] {
+        let m = self.mass_matrix(q);
+        let c = self.coriolis(q, qd);
+        let g = self.gravity(q);
+        let f = [
+            tau[0] - c[0] - self.d1 * qd[0] - g[0],
+            tau[1] - c[1] - self.d2 * qd[1] - g[1],
+        ];
+        solve2(m, f)
+    }
+
+    /// Classic RK4 from (q, qd) over `duration` with step `h`, constant torque.
+    pub fn rk4(&self, q: [f64; 2], qd: [f64; 2], tau: [f64; 2], duration: f64, h: f64) -> ([f64; 2], [f64; 2]) {
+        let steps = (duration / h).round() as usize;
+        let mut x = [q[0], q[1], qd[0], qd[1]];
+        let f = |x: [f64; 4]| {
+            let a = self.acceleration([x[0], x[1]], [x[2], x[3]], tau);
+            [x[2], x[3], a[0], a[1]]
+        };
+        for _ in 0..steps {
+            let k1 = f(x);
+            let k2 = f(add(x, k1, h / 2.0));
+            let k3 = f(add(x, k2, h / 2.0));
+            let k4 = f(add(x, k3, h));
+            for i in 0..4 {
+                x[i] += h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]);
+            }
+        }
+        ([x[0], x[1]], [x[2], x[3]])
+    }
+}
+
+fn add(x: [f64; 4], k: [f64; 4], s: f64) -> [f64; 4] {
+    [x[0] + s * k[0], x[1] + s * k[1], x[2] + s * k[2], x[3] + s * k[3]]
+}
+
+/// Solves a 2x2 linear system.
+pub fn solve2(m: [[f64; 2]; 2], f: [f64; 2]) -> [f64; 2] {
+    let det = m[0][0] * m[1][1] - m[0][1] * m[1][0];
+    [
+        (m[1][1] * f[0] - m[0][1] * f[1]) / det,
+        (m[0][0] * f[1] - m[1][0] * f[0]) / det,
+    ]
+}
