@@ -5,3 +5,4 @@
 //! control -> precision learners and detector -> scenario runner -> reports.
 
 pub mod plant;
+pub mod report;

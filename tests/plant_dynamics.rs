@@ -3,7 +3,7 @@
 mod common;
 
 use aift::plant::{Arm, ArmOptions};
-use common::{repo, solve2, PaperArm};
+use common::{PaperArm, repo, solve2};
 
 fn paper_arm(iterations: usize) -> Arm {
     Arm::from_urdf(
@@ -16,7 +16,13 @@ fn paper_arm(iterations: usize) -> Arm {
     .expect("the paper arm loads")
 }
 
-fn simulate(arm: &mut Arm, q0: [f64; 2], tau: [f64; 2], duration: f64, dt: f64) -> ([f64; 2], [f64; 2]) {
+fn simulate(
+    arm: &mut Arm,
+    q0: [f64; 2],
+    tau: [f64; 2],
+    duration: f64,
+    dt: f64,
+) -> ([f64; 2], [f64; 2]) {
     arm.set_state(&q0, &[0.0, 0.0]);
     arm.set_torques(&tau);
     let steps = (duration / dt).round() as usize;
@@ -52,7 +58,10 @@ fn error_shrinks_as_solver_iterations_grow() {
         .iter()
         .map(|&it| {
             let mut arm = paper_arm(it);
-            max_error(simulate(&mut arm, [0.3, 0.2], [0.0, 0.0], 2.0, 1e-3).0, q_ref)
+            max_error(
+                simulate(&mut arm, [0.3, 0.2], [0.0, 0.0], 2.0, 1e-3).0,
+                q_ref,
+            )
         })
         .collect();
     eprintln!("errors for 1, 4, 16 iterations: {errors:?}");
@@ -77,7 +86,10 @@ fn one_tick_from_rest_equals_the_implicit_damping_map() {
             let q_ref = q0[i] + dt * qd_ref;
             let rel_v = (qd[i] - qd_ref).abs() / qd_ref.abs();
             let rel_q = (q[i] - q_ref).abs() / (q_ref - q0[i]).abs();
-            eprintln!("joint {i}: qd {} ref {qd_ref} rel {rel_v:.2e}; q rel {rel_q:.2e}", qd[i]);
+            eprintln!(
+                "joint {i}: qd {} ref {qd_ref} rel {rel_v:.2e}; q rel {rel_q:.2e}",
+                qd[i]
+            );
             assert!(rel_v <= 1e-9, "joint {i}: qd {} vs {qd_ref}", qd[i]);
             assert!(rel_q <= 1e-9, "joint {i}: q {} vs {q_ref}", q[i]);
         }
@@ -88,7 +100,11 @@ fn one_tick_from_rest_equals_the_implicit_damping_map() {
 fn viscous_friction_from_the_urdf_is_applied() {
     // With the URDF's damping the arm falls far slower than it would without.
     let oracle = PaperArm::default();
-    let undamped = PaperArm { d1: 0.0, d2: 0.0, ..oracle };
+    let undamped = PaperArm {
+        d1: 0.0,
+        d2: 0.0,
+        ..oracle
+    };
     let (q_damped, _) = oracle.rk4([0.3, 0.2], [0.0, 0.0], [0.0, 0.0], 0.5, 1e-5);
     let (q_free, _) = undamped.rk4([0.3, 0.2], [0.0, 0.0], [0.0, 0.0], 0.5, 1e-5);
     let mut arm = paper_arm(4);
@@ -118,7 +134,10 @@ fn end_effector_and_jacobian_follow_forward_kinematics() {
     let p = arm.ee_position();
     let x = l1 * q[0].cos() + l2 * (q[0] + q[1]).cos();
     let z = l1 * q[0].sin() + l2 * (q[0] + q[1]).sin();
-    assert!((p.x - x).abs() < 1e-12 && p.y.abs() < 1e-12 && (p.z - z).abs() < 1e-12, "{p}");
+    assert!(
+        (p.x - x).abs() < 1e-12 && p.y.abs() < 1e-12 && (p.z - z).abs() < 1e-12,
+        "{p}"
+    );
     let jac = arm.ee_jacobian();
     let dx = [
         -l1 * q[0].sin() - l2 * (q[0] + q[1]).sin(),

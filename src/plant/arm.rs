@@ -16,11 +16,12 @@ use rapier3d_f64::prelude::{
     RigidBodyBuilder, RigidBodyHandle,
 };
 
-use super::urdf::{ArmModel, JointKind, ShapeSpec};
 use super::PlantError;
+use super::urdf::{ArmModel, JointKind, ShapeSpec};
 
 /// Settings of the simulated arm. Defaults: end effector `ee`, no offset, gravity 9.81 m/s^2
-/// along -z, 4 solver iterations (they act as substeps: METHOD.md section 8).
+/// along -z, 2 solver iterations (they act as substeps, METHOD.md section 8; 2 keep the tick near
+/// 9 us where 4 cost 12 us, for an error of about 6e-6 rad after 2 s against the RK4 oracle).
 #[derive(Clone, Debug, PartialEq)]
 pub struct ArmOptions {
     /// Link whose frame carries the end effector (any link, merged ones included).
@@ -39,7 +40,7 @@ impl Default for ArmOptions {
             ee_link: "ee".to_string(),
             ee_offset: [0.0; 3],
             gravity: [0.0, 0.0, -9.81],
-            solver_iterations: 4,
+            solver_iterations: 2,
         }
     }
 }
@@ -140,7 +141,11 @@ impl Arm {
         let ee_body = ee.body;
         let ee_local = ee.pose
             * Isometry3::from_parts(
-                Translation3::new(options.ee_offset[0], options.ee_offset[1], options.ee_offset[2]),
+                Translation3::new(
+                    options.ee_offset[0],
+                    options.ee_offset[1],
+                    options.ee_offset[2],
+                ),
                 UnitQuaternion::identity(),
             );
 
@@ -229,16 +234,18 @@ impl Arm {
                     ),
                 );
                 let (shape, pose) = match c.shape {
-                    ShapeSpec::Box { half_extents } => {
-                        (SharedShape::cuboid(half_extents.x, half_extents.y, half_extents.z), c.pose)
-                    }
+                    ShapeSpec::Box { half_extents } => (
+                        SharedShape::cuboid(half_extents.x, half_extents.y, half_extents.z),
+                        c.pose,
+                    ),
                     ShapeSpec::Sphere { radius } => (SharedShape::ball(radius), c.pose),
                     ShapeSpec::Cylinder { radius, length } => {
                         (SharedShape::cylinder(length / 2.0, radius), c.pose * y_to_z)
                     }
-                    ShapeSpec::Capsule { radius, length } => {
-                        (SharedShape::capsule_y(length / 2.0, radius), c.pose * y_to_z)
-                    }
+                    ShapeSpec::Capsule { radius, length } => (
+                        SharedShape::capsule_y(length / 2.0, radius),
+                        c.pose * y_to_z,
+                    ),
                 };
                 colliders.push(ArmCollider {
                     body: b,
@@ -430,7 +437,9 @@ impl Arm {
 
     /// World position of the end effector.
     pub fn ee_position(&self) -> Vector3<f64> {
-        (self.body_pose(self.ee_body) * self.ee_local).translation.vector
+        (self.body_pose(self.ee_body) * self.ee_local)
+            .translation
+            .vector
     }
 
     /// Index of the body that carries the end effector.

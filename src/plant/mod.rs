@@ -5,9 +5,10 @@
 
 mod arm;
 mod error;
+mod open_loop;
 pub mod urdf;
 
 pub use arm::{Arm, ArmCollider, ArmOptions};
-pub(crate) use arm::{to_dvec, to_isometry, to_vector};
 pub use error::PlantError;
-pub use urdf::{load_urdf, parse_urdf, ArmModel, JointKind};
+pub use open_loop::{OpenLoopSample, open_loop_header, run_open_loop};
+pub use urdf::{ArmModel, JointKind, load_urdf, parse_urdf};

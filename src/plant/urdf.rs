@@ -75,12 +75,22 @@ pub struct JointSpec {
 /// A primitive collision shape.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum ShapeSpec {
-    Box { half_extents: Vector3<f64> },
+    Box {
+        half_extents: Vector3<f64>,
+    },
     /// Axis along the shape frame's z, as in URDF.
-    Cylinder { radius: f64, length: f64 },
-    Sphere { radius: f64 },
+    Cylinder {
+        radius: f64,
+        length: f64,
+    },
+    Sphere {
+        radius: f64,
+    },
     /// Axis along the shape frame's z, as in URDF.
-    Capsule { radius: f64, length: f64 },
+    Capsule {
+        radius: f64,
+        length: f64,
+    },
 }
 
 /// A collision shape attached to a body.
@@ -184,7 +194,15 @@ pub fn parse_urdf(text: &str, path: &Path) -> Result<ArmModel, PlantError> {
         });
     }
     let scanned = scan(text, path)?;
-    let robot = urdf_rs::read_from_string(text).map_err(|e| PlantError::Xml {
+    // urdf-rs is not known to panic once the depth is bounded; a panic is still turned into an
+    // error rather than trusted never to happen.
+    let parsed = std::panic::catch_unwind(|| urdf_rs::read_from_string(text)).map_err(|_| {
+        PlantError::Xml {
+            path: path.to_path_buf(),
+            message: "the URDF parser failed on this file".into(),
+        }
+    })?;
+    let robot = parsed.map_err(|e| PlantError::Xml {
         path: path.to_path_buf(),
         message: e.to_string(),
     })?;
@@ -609,16 +627,11 @@ pub(crate) fn build_model(
         return Err(PlantError::NoMovableJoint { path: p() });
     }
     for joint in &robot.joints {
-        if joint.joint_type == urdf_rs::JointType::Revolute
-            || joint.joint_type == urdf_rs::JointType::Continuous
-            || joint.joint_type == urdf_rs::JointType::Prismatic
-        {
-            if joint.mimic.is_some() {
-                warnings.push(format!(
-                    "joint '{}': <mimic> ignored; the joint is simulated as independent",
-                    joint.name
-                ));
-            }
+        if joint.joint_type != urdf_rs::JointType::Fixed && joint.mimic.is_some() {
+            warnings.push(format!(
+                "joint '{}': <mimic> ignored; the joint is simulated as independent",
+                joint.name
+            ));
         }
     }
 
@@ -753,7 +766,11 @@ pub(crate) fn build_model(
 /// The mesh file name as it may be shown: never resolved against the file system, so a
 /// `package://` or absolute path cannot make aift read outside the URDF's folder.
 fn sanitize_mesh_name(filename: &str) -> String {
-    filename.chars().filter(|c| !c.is_control()).take(200).collect()
+    filename
+        .chars()
+        .filter(|c| !c.is_control())
+        .take(200)
+        .collect()
 }
 
 #[cfg(test)]

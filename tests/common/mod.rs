@@ -85,7 +85,14 @@ impl PaperArm {
     }
 
     /// Classic RK4 from (q, qd) over `duration` with step `h`, constant torque.
-    pub fn rk4(&self, q: [f64; 2], qd: [f64; 2], tau: [f64; 2], duration: f64, h: f64) -> ([f64; 2], [f64; 2]) {
+    pub fn rk4(
+        &self,
+        q: [f64; 2],
+        qd: [f64; 2],
+        tau: [f64; 2],
+        duration: f64,
+        h: f64,
+    ) -> ([f64; 2], [f64; 2]) {
         let steps = (duration / h).round() as usize;
         let mut x = [q[0], q[1], qd[0], qd[1]];
         let f = |x: [f64; 4]| {
@@ -106,7 +113,12 @@ impl PaperArm {
 }
 
 fn add(x: [f64; 4], k: [f64; 4], s: f64) -> [f64; 4] {
-    [x[0] + s * k[0], x[1] + s * k[1], x[2] + s * k[2], x[3] + s * k[3]]
+    [
+        x[0] + s * k[0],
+        x[1] + s * k[1],
+        x[2] + s * k[2],
+        x[3] + s * k[3],
+    ]
 }
 
 /// Solves a 2x2 linear system.

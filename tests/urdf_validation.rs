@@ -1,0 +1,401 @@
+//! Every malformed-URDF kind gives its typed error naming the file; nothing panics.
+
+mod common;
+
+use std::path::Path;
+
+use aift::plant::{Arm, ArmOptions, PlantError, parse_urdf};
+use proptest::prelude::*;
+
+fn parse(text: &str) -> Result<aift::plant::ArmModel, PlantError> {
+    parse_urdf(text, Path::new("bad.urdf"))
+}
+
+/// A valid two-joint arm; tests break one thing in it.
+fn arm(links: &str, joints: &str) -> String {
+    format!("<robot name=\"t\">{links}{joints}</robot>")
+}
+
+const WORLD: &str = r#"<link name="world"/>"#;
+
+fn link(name: &str) -> String {
+    format!(
+        r#"<link name="{name}"><inertial><origin xyz="0.5 0 0"/><mass value="1"/>
+        <inertia ixx="0.01" ixy="0" ixz="0" iyy="0.1" iyz="0" izz="0.1"/></inertial></link>"#
+    )
+}
+
+fn joint(name: &str, kind: &str, parent: &str, child: &str) -> String {
+    format!(
+        r#"<joint name="{name}" type="{kind}"><parent link="{parent}"/><child link="{child}"/>
+        <origin xyz="1 0 0"/><axis xyz="0 -1 0"/><limit lower="-1" upper="1" effort="10" velocity="1"/></joint>"#
+    )
+}
+
+fn good() -> String {
+    arm(
+        &format!("{WORLD}{}{}", link("a"), link("b")),
+        &format!(
+            "{}{}",
+            joint("j1", "revolute", "world", "a"),
+            joint("j2", "continuous", "a", "b")
+        ),
+    )
+}
+
+#[test]
+fn the_base_arm_is_valid() {
+    let m = parse(&good()).unwrap();
+    assert_eq!(m.joints.len(), 2);
+}
+
+macro_rules! assert_err {
+    ($result:expr, $pattern:pat) => {
+        match $result {
+            Err(e @ $pattern) => {
+                let msg = e.to_string();
+                assert!(
+                    msg.contains("bad.urdf") || msg.contains(".urdf"),
+                    "message names the file: {msg}"
+                );
+                eprintln!("{msg}");
+            }
+            other => panic!(
+                "expected {}, got {:?}",
+                stringify!($pattern),
+                other.map(|m| m.name)
+            ),
+        }
+    };
+}
+
+#[test]
+fn unreadable_file() {
+    let r = aift::plant::load_urdf(Path::new("/nonexistent/arm.urdf"));
+    assert!(matches!(r, Err(PlantError::Unreadable { .. })));
+}
+
+#[test]
+fn empty_file() {
+    assert_err!(parse(""), PlantError::Empty { .. });
+    assert_err!(parse("  \n "), PlantError::Empty { .. });
+}
+
+#[test]
+fn binary_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("bin.urdf");
+    std::fs::write(&path, [0u8, 159, 146, 150, 255, 0, 1, 2]).unwrap();
+    assert!(matches!(
+        aift::plant::load_urdf(&path),
+        Err(PlantError::NotText { .. })
+    ));
+    assert_err!(parse("<robot>\0</robot>"), PlantError::NotText { .. });
+}
+
+#[test]
+fn deeply_nested_file_is_refused_before_the_parser_sees_it() {
+    let depth = 50_000;
+    let text = format!(
+        "<robot>{}{}</robot>",
+        "<a>".repeat(depth),
+        "</a>".repeat(depth)
+    );
+    assert_err!(parse(&text), PlantError::TooDeep { .. });
+}
+
+#[test]
+fn xml_errors() {
+    assert_err!(
+        parse("<robot><link name=\"a\"></robot>"),
+        PlantError::Xml { .. }
+    );
+    assert_err!(parse("not xml at all"), PlantError::Xml { .. });
+    assert_err!(parse("<notrobot/>"), PlantError::Xml { .. });
+}
+
+#[test]
+fn bad_numbers_name_the_element_and_attribute() {
+    for (from, to) in [
+        (r#"<mass value="1"/>"#, r#"<mass value="one"/>"#),
+        (r#"<mass value="1"/>"#, r#"<mass value="nan"/>"#),
+        (r#"ixx="0.01""#, r#"ixx="1e""#),
+        (r#"<origin xyz="1 0 0"/>"#, r#"<origin xyz="1 0"/>"#),
+        (r#"<axis xyz="0 -1 0"/>"#, r#"<axis xyz="0 -1 inf"/>"#),
+    ] {
+        let text = good().replacen(from, to, 1);
+        match parse(&text) {
+            Err(PlantError::BadNumber {
+                element, attribute, ..
+            }) => {
+                eprintln!("{element} {attribute}");
+                assert!(element.contains("link '") || element.contains("joint '"));
+            }
+            other => panic!("{to}: expected BadNumber, got {:?}", other.map(|m| m.name)),
+        }
+    }
+}
+
+#[test]
+fn unknown_link_in_a_joint() {
+    let text = arm(
+        &format!("{WORLD}{}", link("a")),
+        &joint("j1", "revolute", "world", "nope"),
+    );
+    assert_err!(parse(&text), PlantError::UnknownLink { .. });
+}
+
+#[test]
+fn duplicate_names() {
+    let text = arm(
+        &format!("{WORLD}{}{}", link("a"), link("a")),
+        &joint("j1", "revolute", "world", "a"),
+    );
+    assert_err!(parse(&text), PlantError::DuplicateName { kind: "link", .. });
+    let text = arm(
+        &format!("{WORLD}{}{}", link("a"), link("b")),
+        &format!(
+            "{}{}",
+            joint("j1", "revolute", "world", "a"),
+            joint("j1", "revolute", "a", "b")
+        ),
+    );
+    assert_err!(
+        parse(&text),
+        PlantError::DuplicateName { kind: "joint", .. }
+    );
+}
+
+#[test]
+fn no_single_root() {
+    let text = arm(
+        &format!("{WORLD}{}{}{}", link("a"), link("b"), link("c")),
+        &format!(
+            "{}{}",
+            joint("j1", "revolute", "world", "a"),
+            joint("j2", "revolute", "b", "c")
+        ),
+    );
+    assert_err!(parse(&text), PlantError::NoSingleRoot { .. });
+}
+
+#[test]
+fn cycles() {
+    let text = arm(
+        &format!("{WORLD}{}{}", link("a"), link("b")),
+        &format!(
+            "{}{}{}",
+            joint("j1", "revolute", "world", "a"),
+            joint("j2", "revolute", "b", "b"),
+            ""
+        ),
+    );
+    assert_err!(parse(&text), PlantError::Cycle { .. });
+    // a -> b -> a hanging off nothing, beside a proper root.
+    let text = arm(
+        &format!("{WORLD}{}{}{}", link("a"), link("b"), link("c")),
+        &format!(
+            "{}{}{}",
+            joint("j1", "revolute", "world", "a"),
+            joint("j2", "revolute", "b", "c"),
+            joint("j3", "revolute", "c", "b")
+        ),
+    );
+    assert_err!(parse(&text), PlantError::Cycle { .. });
+}
+
+#[test]
+fn a_link_not_connected() {
+    let text = arm(
+        &format!("{WORLD}{}{}", link("a"), link("lonely")),
+        &joint("j1", "revolute", "world", "a"),
+    );
+    assert_err!(parse(&text), PlantError::Disconnected { .. });
+}
+
+#[test]
+fn a_link_with_two_parents() {
+    let text = arm(
+        &format!("{WORLD}{}{}", link("a"), link("b")),
+        &format!(
+            "{}{}{}",
+            joint("j1", "revolute", "world", "a"),
+            joint("j2", "revolute", "world", "b"),
+            joint("j3", "revolute", "a", "b")
+        ),
+    );
+    assert_err!(parse(&text), PlantError::MultipleParents { .. });
+}
+
+#[test]
+fn bad_masses() {
+    for mass in ["0", "-1"] {
+        let text = good().replacen(
+            r#"<mass value="1"/>"#,
+            &format!(r#"<mass value="{mass}"/>"#),
+            1,
+        );
+        assert_err!(parse(&text), PlantError::BadMass { .. });
+    }
+}
+
+#[test]
+fn bad_inertia() {
+    let not_pd = good().replacen(r#"ixx="0.01""#, r#"ixx="-0.01""#, 1);
+    assert_err!(parse(&not_pd), PlantError::BadInertia { .. });
+    let zero = good().replacen(r#"ixx="0.01""#, r#"ixx="0""#, 1);
+    assert_err!(parse(&zero), PlantError::BadInertia { .. });
+    let triangle = good().replacen(r#"iyy="0.1""#, r#"iyy="0.5""#, 1);
+    match parse(&triangle) {
+        Err(PlantError::BadInertia { reason, .. }) => {
+            assert!(reason.contains("triangle"), "{reason}")
+        }
+        other => panic!(
+            "expected a triangle-inequality error, got {:?}",
+            other.map(|m| m.name)
+        ),
+    }
+}
+
+#[test]
+fn zero_axis() {
+    let text = good().replacen(r#"<axis xyz="0 -1 0"/>"#, r#"<axis xyz="0 0 0"/>"#, 1);
+    assert_err!(parse(&text), PlantError::ZeroAxis { .. });
+}
+
+#[test]
+fn inverted_limits() {
+    let text = good().replacen(r#"lower="-1" upper="1""#, r#"lower="1" upper="-1""#, 1);
+    assert_err!(parse(&text), PlantError::BadLimit { .. });
+}
+
+#[test]
+fn no_movable_joint() {
+    let text = arm(
+        &format!("{WORLD}{}", link("a")),
+        &joint("j1", "fixed", "world", "a"),
+    );
+    assert_err!(parse(&text), PlantError::NoMovableJoint { .. });
+}
+
+#[test]
+fn unsupported_joint_kind_names_the_joint() {
+    let text = arm(
+        &format!("{WORLD}{}", link("a")),
+        &joint("free_base", "floating", "world", "a"),
+    );
+    match parse(&text) {
+        Err(PlantError::UnsupportedJoint { joint, kind, .. }) => {
+            assert_eq!(joint, "free_base");
+            assert_eq!(kind, "floating");
+        }
+        other => panic!("{:?}", other.map(|m| m.name)),
+    }
+}
+
+#[test]
+fn massless_moving_body() {
+    let text = arm(
+        r#"<link name="world"/><link name="ghost"/>"#,
+        &joint("j1", "revolute", "world", "ghost"),
+    );
+    assert_err!(parse(&text), PlantError::MasslessBody { .. });
+}
+
+#[test]
+fn massless_tip_merged_by_a_fixed_joint_is_fine_and_can_be_the_end_effector() {
+    let text = arm(
+        &format!(r#"{WORLD}{}<link name="tip"/>"#, link("a")),
+        &format!(
+            "{}{}",
+            joint("j1", "revolute", "world", "a"),
+            joint("tipj", "fixed", "a", "tip")
+        ),
+    );
+    let model = parse(&text).unwrap();
+    let arm = Arm::new(
+        model,
+        ArmOptions {
+            ee_link: "tip".into(),
+            ..ArmOptions::default()
+        },
+    )
+    .unwrap();
+    let p = arm.ee_position();
+    assert!((p.x - 2.0).abs() < 1e-12, "{p}");
+}
+
+#[test]
+fn unknown_end_effector() {
+    let model = parse(&good()).unwrap();
+    let r = Arm::new(
+        model,
+        ArmOptions {
+            ee_link: "hand".into(),
+            ..ArmOptions::default()
+        },
+    );
+    assert!(matches!(r, Err(PlantError::UnknownEndEffector { .. })));
+}
+
+#[test]
+fn meshes_are_skipped_with_a_warning_and_never_resolved() {
+    for file in [
+        "package://evil/../../../etc/passwd",
+        "/etc/shadow",
+        "../../x.stl",
+    ] {
+        let text = good().replacen(
+            "</inertial></link>",
+            &format!(
+                r#"</inertial><collision><geometry><mesh filename="{file}"/></geometry></collision></link>"#
+            ),
+            1,
+        );
+        let m = parse(&text).unwrap();
+        assert!(
+            m.warnings.iter().any(|w| w.contains("mesh")),
+            "{:?}",
+            m.warnings
+        );
+    }
+}
+
+#[test]
+fn bundled_urdfs_are_valid() {
+    for file in ["urdf/planar_2dof.urdf", "urdf/planar_3dof.urdf"] {
+        let m = aift::plant::load_urdf(&common::repo(file)).unwrap();
+        assert!(m.warnings.is_empty(), "{file}: {:?}", m.warnings);
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 400, .. ProptestConfig::default() })]
+
+    /// Random edits of a valid file: the loader returns Ok or Err, never panics.
+    #[test]
+    fn mutated_files_never_panic(
+        edits in prop::collection::vec((0usize..4000, 0u8..4, prop::sample::select(
+            vec!['<', '>', '"', '/', '0', '-', 'e', ' ', 'x', '=', '1', '.'])), 1..6)
+    ) {
+        let mut text: Vec<char> = std::fs::read_to_string(common::repo("urdf/planar_2dof.urdf"))
+            .unwrap()
+            .chars()
+            .collect();
+        for (pos, op, ch) in edits {
+            if text.is_empty() { break; }
+            let pos = pos % text.len();
+            match op {
+                0 => { text.remove(pos); }
+                1 => text.insert(pos, ch),
+                2 => text[pos] = ch,
+                _ => text.truncate(pos),
+            }
+        }
+        let text: String = text.into_iter().collect();
+        if let Ok(model) = parse(&text) {
+            // Whatever loads must also build.
+            let _ = Arm::new(model, ArmOptions::default());
+        }
+    }
+}
