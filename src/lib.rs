@@ -6,3 +6,4 @@
 
 pub mod plant;
 pub mod report;
+pub mod sensors;

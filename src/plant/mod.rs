@@ -8,6 +8,7 @@ mod error;
 mod open_loop;
 pub mod urdf;
 
+pub(crate) use arm::to_dvec;
 pub use arm::{Arm, ArmCollider, ArmOptions};
 pub use error::PlantError;
 pub use open_loop::{OpenLoopSample, open_loop_header, run_open_loop};

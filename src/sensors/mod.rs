@@ -1,0 +1,348 @@
+//! Sensors and sensor faults: what the controller is allowed to see.
+//!
+//! Every control tick the [`SensorSuite`] reads the plant: an encoder and a tachometer per joint
+//! (true value + Gaussian noise) and a camera that sees the end effector (METHOD.md section 2).
+//! Each channel draws from its own noise stream, derived from the scenario seed and the channel's
+//! identity only (ChaCha8 with a stream id per channel), so adding a channel or a fault never
+//! changes another channel's noise. Faults ([`faults`]) then act on the noisy readings.
+//! A reading can be missing (camera occluded, dropout): that is explicit in [`Readings`].
+
+pub mod camera;
+pub mod faults;
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
+use serde::{Deserialize, Serialize};
+
+use crate::plant::Arm;
+pub use camera::{Camera, CameraConfig, NotSeen};
+pub use faults::{Fault, FaultKind, FaultSpec, FaultTarget};
+
+/// One sensory channel.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Channel {
+    /// Joint position encoder of joint i (0-based).
+    Encoder(usize),
+    /// Joint velocity tachometer of joint i (0-based).
+    Tachometer(usize),
+    /// Camera image coordinate 0 (u) or 1 (v).
+    Camera(usize),
+}
+
+/// A group of channels of one kind (the detector works per group).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum SensorGroup {
+    Encoders,
+    Tachometers,
+    Camera,
+}
+
+impl SensorGroup {
+    pub const ALL: [SensorGroup; 3] = [Self::Encoders, Self::Tachometers, Self::Camera];
+
+    /// Short name: `enc`, `tach`, `cam`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Encoders => "enc",
+            Self::Tachometers => "tach",
+            Self::Camera => "cam",
+        }
+    }
+}
+
+impl Channel {
+    /// Short name used in files: `enc1`, `tach2`, `cam_u`, `cam_v` (joints 1-based).
+    pub fn name(self) -> String {
+        match self {
+            Self::Encoder(i) => format!("enc{}", i + 1),
+            Self::Tachometer(i) => format!("tach{}", i + 1),
+            Self::Camera(0) => "cam_u".to_string(),
+            Self::Camera(_) => "cam_v".to_string(),
+        }
+    }
+
+    /// Parses a short name for an arm with `n_joints` joints.
+    pub fn parse(name: &str, n_joints: usize) -> Option<Self> {
+        let joint = |digits: &str| {
+            digits
+                .parse::<usize>()
+                .ok()
+                .filter(|&i| i >= 1 && i <= n_joints && !digits.starts_with('0'))
+                .map(|i| i - 1)
+        };
+        match name {
+            "cam_u" => Some(Self::Camera(0)),
+            "cam_v" => Some(Self::Camera(1)),
+            _ => {
+                if let Some(d) = name.strip_prefix("enc") {
+                    joint(d).map(Self::Encoder)
+                } else if let Some(d) = name.strip_prefix("tach") {
+                    joint(d).map(Self::Tachometer)
+                } else {
+                    None
+                }
+            }
+        }
+    }
+
+    /// The group the channel belongs to.
+    pub fn group(self) -> SensorGroup {
+        match self {
+            Self::Encoder(_) => SensorGroup::Encoders,
+            Self::Tachometer(_) => SensorGroup::Tachometers,
+            Self::Camera(_) => SensorGroup::Camera,
+        }
+    }
+
+    /// The id of this channel's noise stream: depends on the channel alone.
+    fn stream(self) -> u64 {
+        match self {
+            Self::Encoder(i) => 1_000 + i as u64,
+            Self::Tachometer(i) => 2_000 + i as u64,
+            Self::Camera(i) => 3_000 + i as u64,
+        }
+    }
+}
+
+/// The channels of an arm with n joints, in a fixed order: encoders 0..n, tachometers n..2n,
+/// camera u, v at 2n, 2n+1.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ChannelLayout {
+    pub n_joints: usize,
+}
+
+impl ChannelLayout {
+    pub fn new(n_joints: usize) -> Self {
+        Self { n_joints }
+    }
+
+    /// Number of channels: 2 n + 2.
+    pub fn len(&self) -> usize {
+        2 * self.n_joints + 2
+    }
+
+    /// Always false (an arm has at least one joint).
+    pub fn is_empty(&self) -> bool {
+        false
+    }
+
+    pub fn channel(&self, index: usize) -> Channel {
+        let n = self.n_joints;
+        match index {
+            i if i < n => Channel::Encoder(i),
+            i if i < 2 * n => Channel::Tachometer(i - n),
+            i => Channel::Camera(i - 2 * n),
+        }
+    }
+
+    pub fn index(&self, channel: Channel) -> usize {
+        match channel {
+            Channel::Encoder(i) => i,
+            Channel::Tachometer(i) => self.n_joints + i,
+            Channel::Camera(i) => 2 * self.n_joints + i,
+        }
+    }
+
+    /// Every channel in order.
+    pub fn channels(&self) -> impl Iterator<Item = Channel> + '_ {
+        (0..self.len()).map(|i| self.channel(i))
+    }
+
+    /// Channel indices of a group.
+    pub fn group_range(&self, group: SensorGroup) -> std::ops::Range<usize> {
+        let n = self.n_joints;
+        match group {
+            SensorGroup::Encoders => 0..n,
+            SensorGroup::Tachometers => n..2 * n,
+            SensorGroup::Camera => 2 * n..2 * n + 2,
+        }
+    }
+}
+
+/// One tick's readings, one per channel in [`ChannelLayout`] order; `None` is missing.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Readings {
+    pub values: Vec<Option<f64>>,
+}
+
+impl Readings {
+    /// All channels missing.
+    pub fn missing(layout: ChannelLayout) -> Self {
+        Self {
+            values: vec![None; layout.len()],
+        }
+    }
+
+    pub fn get(&self, channel: usize) -> Option<f64> {
+        self.values[channel]
+    }
+}
+
+/// Noise levels. Defaults are the paper's: 0.001 for encoders and tachometers (rad, rad/s),
+/// the camera as in [`CameraConfig`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SensorConfig {
+    /// Encoder noise standard deviation (rad).
+    pub encoder_sigma: f64,
+    /// Tachometer noise standard deviation (rad/s).
+    pub tachometer_sigma: f64,
+}
+
+impl Default for SensorConfig {
+    fn default() -> Self {
+        Self {
+            encoder_sigma: 1e-3,
+            tachometer_sigma: 1e-3,
+        }
+    }
+}
+
+impl SensorConfig {
+    /// Checks the values; on error returns the offending field and why.
+    pub fn validate(&self) -> Result<(), (&'static str, String)> {
+        for (name, v) in [
+            ("encoder_sigma", self.encoder_sigma),
+            ("tachometer_sigma", self.tachometer_sigma),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err((name, "must be finite and >= 0".into()));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Reads the plant every tick: noise per channel, camera with occlusion, faults.
+pub struct SensorSuite {
+    layout: ChannelLayout,
+    camera: Camera,
+    sigmas: Vec<f64>,
+    rngs: Vec<ChaCha8Rng>,
+    faults: Vec<faults::ActiveFault>,
+    dt: f64,
+    q: Vec<f64>,
+    qd: Vec<f64>,
+    truth: Vec<Option<f64>>,
+    noise: Vec<f64>,
+    /// Why the camera missed this tick, if it did.
+    camera_miss: Option<NotSeen>,
+}
+
+impl SensorSuite {
+    /// A suite for an arm with `layout.n_joints` joints, sampled every `dt` seconds.
+    pub fn new(
+        layout: ChannelLayout,
+        config: &SensorConfig,
+        camera: Camera,
+        faults: &[Fault],
+        dt: f64,
+        seed: u64,
+    ) -> Self {
+        let sigmas: Vec<f64> = layout
+            .channels()
+            .map(|c| match c {
+                Channel::Encoder(_) => config.encoder_sigma,
+                Channel::Tachometer(_) => config.tachometer_sigma,
+                Channel::Camera(_) => camera.config().sigma,
+            })
+            .collect();
+        let rngs = layout
+            .channels()
+            .map(|c| {
+                let mut rng = ChaCha8Rng::seed_from_u64(seed);
+                rng.set_stream(c.stream());
+                rng
+            })
+            .collect();
+        let faults = faults
+            .iter()
+            .enumerate()
+            .map(|(i, f)| faults::ActiveFault::new(*f, i, layout.len(), dt, seed))
+            .collect();
+        let n = layout.n_joints;
+        Self {
+            layout,
+            camera,
+            sigmas,
+            rngs,
+            faults,
+            dt,
+            q: vec![0.0; n],
+            qd: vec![0.0; n],
+            truth: vec![None; layout.len()],
+            noise: vec![0.0; layout.len()],
+            camera_miss: None,
+        }
+    }
+
+    pub fn layout(&self) -> ChannelLayout {
+        self.layout
+    }
+
+    pub fn camera(&self) -> &Camera {
+        &self.camera
+    }
+
+    /// Nominal noise standard deviation per channel.
+    pub fn sigmas(&self) -> &[f64] {
+        &self.sigmas
+    }
+
+    /// Why the camera reading of the last tick is missing, if it is (faults aside).
+    pub fn camera_miss(&self) -> Option<NotSeen> {
+        self.camera_miss
+    }
+
+    /// The noise-free values of the last tick (`None` where the camera could not see).
+    pub fn truth(&self) -> &[Option<f64>] {
+        &self.truth
+    }
+
+    /// The noise sample of each channel at the last tick (before faults).
+    pub fn noise(&self) -> &[f64] {
+        &self.noise
+    }
+
+    /// Reads the plant at tick `tick` (time `tick * dt`) into `out`, without allocating.
+    pub fn read(&mut self, arm: &Arm, tick: u64, out: &mut Readings) {
+        let n = self.layout.n_joints;
+        arm.read_state(&mut self.q, &mut self.qd);
+        for i in 0..n {
+            self.truth[i] = Some(self.q[i]);
+            self.truth[n + i] = Some(self.qd[i]);
+        }
+        match self.camera.observe(arm) {
+            Ok([u, v]) => {
+                self.truth[2 * n] = Some(u);
+                self.truth[2 * n + 1] = Some(v);
+                self.camera_miss = None;
+            }
+            Err(why) => {
+                self.truth[2 * n] = None;
+                self.truth[2 * n + 1] = None;
+                self.camera_miss = Some(why);
+            }
+        }
+        for c in 0..self.layout.len() {
+            // One draw per channel and tick, always: streams stay aligned whatever happens.
+            let z: f64 = StandardNormal.sample(&mut self.rngs[c]);
+            self.noise[c] = self.sigmas[c] * z;
+            out.values[c] = self.truth[c].map(|t| t + self.noise[c]);
+        }
+        for fault in &mut self.faults {
+            let active = fault.active(tick);
+            for c in 0..self.layout.len() {
+                if !fault.fault.hits(&self.layout, c) {
+                    continue;
+                }
+                if active {
+                    out.values[c] = fault.apply(c, tick, self.dt, self.noise[c], out.values[c]);
+                } else {
+                    fault.release(c);
+                }
+            }
+        }
+    }
+}

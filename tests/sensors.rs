@@ -1,0 +1,363 @@
+//! Sensors: noise statistics and stream independence, the camera (distortion, poses, occlusion),
+//! and every fault kind in time.
+
+mod common;
+
+use aift::plant::{Arm, ArmOptions};
+use aift::sensors::{
+    Camera, CameraConfig, Channel, ChannelLayout, Fault, FaultSpec, Readings, SensorConfig,
+    SensorSuite,
+};
+use common::repo;
+
+fn arm(file: &str) -> Arm {
+    Arm::from_urdf(&repo(file), ArmOptions::default()).unwrap()
+}
+
+fn suite(arm: &Arm, faults: &[Fault], seed: u64) -> SensorSuite {
+    SensorSuite::new(
+        ChannelLayout::new(arm.n_joints()),
+        &SensorConfig::default(),
+        Camera::new(CameraConfig::default()),
+        faults,
+        1e-3,
+        seed,
+    )
+}
+
+/// Noise samples per channel over `ticks` ticks of a resting arm.
+fn noise_series(arm: &Arm, suite: &mut SensorSuite, ticks: u64) -> Vec<Vec<f64>> {
+    let layout = suite.layout();
+    let mut out = vec![Vec::with_capacity(ticks as usize); layout.len()];
+    let mut readings = Readings::missing(layout);
+    for k in 0..ticks {
+        suite.read(arm, k, &mut readings);
+        for (c, series) in out.iter_mut().enumerate() {
+            series.push(suite.noise()[c]);
+        }
+    }
+    out
+}
+
+fn mean_std(x: &[f64]) -> (f64, f64) {
+    let n = x.len() as f64;
+    let m = x.iter().sum::<f64>() / n;
+    let v = x.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / (n - 1.0);
+    (m, v.sqrt())
+}
+
+#[test]
+fn noise_has_the_configured_mean_and_std() {
+    let arm = arm("urdf/planar_2dof.urdf");
+    let mut s = suite(&arm, &[], 7);
+    let n = 100_000;
+    let series = noise_series(&arm, &mut s, n);
+    let sigmas = s.sigmas().to_vec();
+    for (c, x) in series.iter().enumerate() {
+        let (m, sd) = mean_std(x);
+        let sigma = sigmas[c];
+        // 5-sigma bounds of the sample mean and the sample standard deviation.
+        assert!(
+            m.abs() < 5.0 * sigma / (n as f64).sqrt(),
+            "channel {c}: mean {m}"
+        );
+        assert!(
+            (sd / sigma - 1.0).abs() < 5.0 / (2.0 * n as f64).sqrt(),
+            "channel {c}: std {sd} vs {sigma}"
+        );
+    }
+}
+
+#[test]
+fn streams_are_independent_of_each_other_and_of_the_channel_count() {
+    let arm2 = arm("urdf/planar_2dof.urdf");
+    let arm3 = arm("urdf/planar_3dof.urdf");
+    let n = 100_000;
+    let s2 = noise_series(&arm2, &mut suite(&arm2, &[], 11), n);
+    let s3 = noise_series(&arm3, &mut suite(&arm3, &[], 11), n);
+    let l2 = ChannelLayout::new(2);
+    let l3 = ChannelLayout::new(3);
+    // Same channel, same seed: the same noise, whatever the number of joints.
+    for ch in [
+        Channel::Encoder(0),
+        Channel::Encoder(1),
+        Channel::Tachometer(1),
+        Channel::Camera(0),
+        Channel::Camera(1),
+    ] {
+        let a = &s2[l2.index(ch)];
+        let b = &s3[l3.index(ch)];
+        assert!(
+            a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits()),
+            "{ch:?}"
+        );
+    }
+    // Different channels: uncorrelated (|r| < 5 / sqrt(n)).
+    for i in 0..s2.len() {
+        for j in 0..i {
+            let (mi, si) = mean_std(&s2[i]);
+            let (mj, sj) = mean_std(&s2[j]);
+            let r = s2[i]
+                .iter()
+                .zip(&s2[j])
+                .map(|(a, b)| (a - mi) * (b - mj))
+                .sum::<f64>()
+                / ((n as f64 - 1.0) * si * sj);
+            assert!(
+                r.abs() < 5.0 / (n as f64).sqrt(),
+                "channels {i},{j}: r = {r}"
+            );
+        }
+    }
+    // A different seed gives different noise.
+    let other = noise_series(&arm2, &mut suite(&arm2, &[], 12), 10);
+    assert_ne!(other[0], s2[0][..10].to_vec());
+}
+
+#[test]
+fn adding_a_fault_does_not_change_another_channels_noise() {
+    let arm = arm("urdf/planar_2dof.urdf");
+    let spikes = FaultSpec {
+        channel: "enc1".into(),
+        kind: "spikes".into(),
+        start: 0.0,
+        end: None,
+        offset: None,
+        rate: None,
+        factor: None,
+        value: None,
+        probability: Some(0.5),
+        magnitude: Some(1.0),
+    }
+    .to_fault(2)
+    .unwrap();
+    let mut clean = suite(&arm, &[], 3);
+    let mut faulty = suite(&arm, &[spikes], 3);
+    let layout = clean.layout();
+    let (mut a, mut b) = (Readings::missing(layout), Readings::missing(layout));
+    let mut differed = false;
+    for k in 0..2000 {
+        clean.read(&arm, k, &mut a);
+        faulty.read(&arm, k, &mut b);
+        for c in 1..layout.len() {
+            assert_eq!(a.values[c], b.values[c], "tick {k} channel {c}");
+        }
+        differed |= a.values[0] != b.values[0];
+    }
+    assert!(differed, "the spikes did hit encoder 1");
+}
+
+#[test]
+fn readings_are_truth_plus_noise_and_the_camera_sees_the_distorted_tip() {
+    let mut arm = arm("urdf/planar_2dof.urdf");
+    arm.set_state(&[-0.2, 0.5], &[0.3, -0.1]);
+    let mut s = suite(&arm, &[], 5);
+    let mut r = Readings::missing(s.layout());
+    s.read(&arm, 0, &mut r);
+    let noise = s.noise().to_vec();
+    assert_eq!(r.values[0], Some(-0.2 + noise[0]));
+    assert_eq!(r.values[3], Some(-0.1 + noise[3]));
+    let p = arm.ee_position();
+    let image = Camera::new(CameraConfig::default()).project(&p).unwrap();
+    assert_eq!(r.values[4], Some(image[0] + noise[4]));
+    assert_eq!(r.values[5], Some(image[1] + noise[5]));
+    // The distorted image is within 2 cm of the true (x, z) but not equal to it.
+    let (dx, dz) = (image[0] - p.x, image[1] - p.z);
+    assert!(dx.hypot(dz) < 0.02 && dx.hypot(dz) > 1e-3, "{dx} {dz}");
+}
+
+#[test]
+fn an_occluded_end_effector_reports_missing() {
+    let mut arm = arm("urdf/planar_2dof.urdf");
+    // A camera above the base looking down; hanging straight down, link 1 hides the tip.
+    let camera = Camera::new(CameraConfig {
+        position: [0.0, 0.0, 5.0],
+        look_at: [0.0, 0.0, -1.0],
+        up: [1.0, 0.0, 0.0],
+        ..CameraConfig::default()
+    });
+    let mut s = SensorSuite::new(
+        ChannelLayout::new(2),
+        &SensorConfig::default(),
+        camera,
+        &[],
+        1e-3,
+        1,
+    );
+    let mut r = Readings::missing(s.layout());
+    arm.set_state(&[-std::f64::consts::FRAC_PI_2, 0.0], &[0.0, 0.0]);
+    s.read(&arm, 0, &mut r);
+    assert_eq!((r.values[4], r.values[5]), (None, None));
+    assert_eq!(s.camera_miss(), Some(aift::sensors::NotSeen::Occluded));
+    assert!(r.values[0].is_some(), "encoders still read");
+    // Stretched out horizontally the tip is in plain view.
+    arm.set_state(&[0.0, 0.0], &[0.0, 0.0]);
+    s.read(&arm, 1, &mut r);
+    assert!(r.values[4].is_some() && r.values[5].is_some());
+}
+
+fn spec(channel: &str, kind: &str, start: f64, end: Option<f64>) -> FaultSpec {
+    FaultSpec {
+        channel: channel.into(),
+        kind: kind.into(),
+        start,
+        end,
+        offset: None,
+        rate: None,
+        factor: None,
+        value: None,
+        probability: None,
+        magnitude: None,
+    }
+}
+
+/// Runs a moving arm with one fault (start 0.1 s, end 0.2 s) and the same arm without, and
+/// returns (faulty, clean, noise) series of the channel.
+fn with_and_without(
+    fault: FaultSpec,
+    channel: usize,
+) -> (Vec<Option<f64>>, Vec<Option<f64>>, Vec<f64>) {
+    let mut arm = arm("urdf/planar_2dof.urdf");
+    arm.set_state(&[-0.5, 0.5], &[0.0, 0.0]);
+    arm.set_torques(&[60.0, 5.0]);
+    let fault = fault.to_fault(2).unwrap();
+    let mut clean = suite(&arm, &[], 9);
+    let mut faulty = suite(&arm, &[fault], 9);
+    let (mut a, mut b) = (
+        Readings::missing(clean.layout()),
+        Readings::missing(clean.layout()),
+    );
+    let (mut fa, mut cl, mut noise) = (vec![], vec![], vec![]);
+    for k in 0..300 {
+        clean.read(&arm, k, &mut a);
+        faulty.read(&arm, k, &mut b);
+        fa.push(b.values[channel]);
+        cl.push(a.values[channel]);
+        noise.push(clean.noise()[channel]);
+        arm.step(1e-3);
+    }
+    (fa, cl, noise)
+}
+
+/// Before 0.1 s and from 0.2 s the faulty channel equals the clean one.
+fn assert_only_between(fa: &[Option<f64>], cl: &[Option<f64>]) {
+    for k in (0..100).chain(200..300) {
+        assert_eq!(fa[k], cl[k], "tick {k} outside the fault");
+    }
+}
+
+#[test]
+fn freeze_holds_the_reading_of_its_first_tick() {
+    let (fa, cl, _) = with_and_without(spec("enc1", "freeze", 0.1, Some(0.2)), 0);
+    assert_only_between(&fa, &cl);
+    for k in 100..200 {
+        assert_eq!(fa[k], cl[100], "tick {k}");
+    }
+    assert_ne!(cl[150], cl[100], "the arm moved meanwhile");
+}
+
+#[test]
+fn bias_adds_an_offset() {
+    let mut s = spec("cam_u", "bias", 0.1, Some(0.2));
+    s.offset = Some(0.04);
+    let (fa, cl, _) = with_and_without(s, 4);
+    assert_only_between(&fa, &cl);
+    for k in 100..200 {
+        assert!((fa[k].unwrap() - cl[k].unwrap() - 0.04).abs() < 1e-12);
+    }
+}
+
+#[test]
+fn drift_grows_at_its_rate() {
+    let mut s = spec("tach2", "drift", 0.1, Some(0.2));
+    s.rate = Some(2.0);
+    let (fa, cl, _) = with_and_without(s, 3);
+    assert_only_between(&fa, &cl);
+    for k in 100..200 {
+        let expected = 2.0 * (k - 100) as f64 * 1e-3;
+        assert!(
+            (fa[k].unwrap() - cl[k].unwrap() - expected).abs() < 1e-12,
+            "tick {k}"
+        );
+    }
+}
+
+#[test]
+fn gain_scales_the_reading() {
+    let mut s = spec("enc2", "gain", 0.1, Some(0.2));
+    s.factor = Some(1.5);
+    let (fa, cl, _) = with_and_without(s, 1);
+    assert_only_between(&fa, &cl);
+    for k in 100..200 {
+        assert!((fa[k].unwrap() - 1.5 * cl[k].unwrap()).abs() < 1e-12);
+    }
+}
+
+#[test]
+fn noise_fault_multiplies_the_noise() {
+    let mut s = spec("enc1", "noise", 0.1, Some(0.2));
+    s.factor = Some(10.0);
+    let (fa, cl, noise) = with_and_without(s, 0);
+    assert_only_between(&fa, &cl);
+    for k in 100..200 {
+        let truth = cl[k].unwrap() - noise[k];
+        assert!((fa[k].unwrap() - (truth + 10.0 * noise[k])).abs() < 1e-12);
+    }
+}
+
+#[test]
+fn dropout_makes_the_reading_missing() {
+    let (fa, cl, _) = with_and_without(spec("cam", "dropout", 0.1, Some(0.2)), 5);
+    assert_only_between(&fa, &cl);
+    assert!(fa[100..200].iter().all(Option::is_none));
+}
+
+#[test]
+fn stuck_reports_a_constant() {
+    let mut s = spec("tach1", "stuck", 0.1, Some(0.2));
+    s.value = Some(3.0);
+    let (fa, cl, _) = with_and_without(s, 2);
+    assert_only_between(&fa, &cl);
+    assert!(fa[100..200].iter().all(|v| *v == Some(3.0)));
+}
+
+#[test]
+fn spikes_are_outliers_with_the_given_probability() {
+    let mut s = spec("enc1", "spikes", 0.1, Some(0.2));
+    s.probability = Some(0.3);
+    s.magnitude = Some(0.5);
+    let (fa, cl, _) = with_and_without(s, 0);
+    assert_only_between(&fa, &cl);
+    let mut spikes = 0;
+    for k in 100..200 {
+        let d = fa[k].unwrap() - cl[k].unwrap();
+        assert!(d.abs() < 1e-12 || (d.abs() - 0.5).abs() < 1e-12, "{d}");
+        spikes += usize::from(d.abs() > 0.25);
+    }
+    assert!(
+        (10..=50).contains(&spikes),
+        "{spikes} spikes in 100 ticks at p = 0.3"
+    );
+}
+
+#[test]
+fn fault_specs_are_validated_field_by_field() {
+    let cases = [
+        (spec("enc3", "freeze", 1.0, None), "channel"),
+        (spec("enc1", "frezee", 1.0, None), "kind"),
+        (spec("enc1", "bias", 1.0, None), "offset"),
+        (spec("enc1", "freeze", -1.0, None), "start"),
+        (spec("enc1", "freeze", 2.0, Some(1.0)), "end"),
+        (spec("enc1", "freeze", f64::NAN, None), "start"),
+        (
+            FaultSpec {
+                offset: Some(1.0),
+                ..spec("enc1", "freeze", 1.0, None)
+            },
+            "offset",
+        ),
+    ];
+    for (s, field) in cases {
+        assert_eq!(s.to_fault(2).unwrap_err().0, field, "{s:?}");
+    }
+}
