@@ -84,10 +84,10 @@ impl CameraConfig {
         if forward.cross(&Vector3::from(self.up)).norm() < 1e-9 * forward.norm() {
             return Err(("up", "must not be parallel to the viewing direction".into()));
         }
-        if let Some(d) = self.reference_depth {
-            if !(d.is_finite() && d > 0.0) {
-                return Err(("reference_depth", "must be finite and > 0".into()));
-            }
+        if let Some(d) = self.reference_depth
+            && !(d.is_finite() && d > 0.0)
+        {
+            return Err(("reference_depth", "must be finite and > 0".into()));
         }
         Ok(())
     }

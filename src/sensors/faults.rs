@@ -98,10 +98,10 @@ impl FaultSpec {
         if !self.start.is_finite() || self.start < 0.0 {
             return Err(("start", "must be finite and >= 0".into()));
         }
-        if let Some(end) = self.end {
-            if !end.is_finite() || end <= self.start {
-                return Err(("end", "must be finite and after start".into()));
-            }
+        if let Some(end) = self.end
+            && (!end.is_finite() || end <= self.start)
+        {
+            return Err(("end", "must be finite and after start".into()));
         }
         let need = |name: &'static str, v: Option<f64>| match v {
             Some(x) if x.is_finite() => Ok(x),
