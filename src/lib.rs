@@ -4,6 +4,7 @@
 //! [`plant`] (URDF, physics) -> sensors and faults -> generative model (GP) -> u-AIC estimation and
 //! control -> precision learners and detector -> scenario runner -> reports.
 
+pub mod gp;
 pub mod plant;
 pub mod report;
 pub mod sensors;
