@@ -47,6 +47,9 @@ pub struct FitReport {
     pub evaluations: usize,
 }
 
+/// A cached evaluation: parameters, negative LML and its gradient.
+type Evaluation = (Vec<f64>, f64, Vec<f64>);
+
 /// The negative log marginal likelihood of a data set, as argmin's problem.
 pub(crate) struct MarginalLikelihood<'a> {
     /// N x n inputs.
@@ -54,7 +57,7 @@ pub(crate) struct MarginalLikelihood<'a> {
     /// N x R centred outputs.
     y: &'a DMatrix<f64>,
     min_noise_var: f64,
-    cache: Mutex<Option<(Vec<f64>, f64, Vec<f64>)>>,
+    cache: Mutex<Option<Evaluation>>,
     evaluations: &'a AtomicUsize,
 }
 

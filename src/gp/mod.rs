@@ -237,8 +237,8 @@ impl GpModel {
         if m.n_inputs == 0 || m.n_outputs == 0 {
             return Err(parse("n_inputs and n_outputs must be >= 1".into()));
         }
-        if m.inputs.len() % m.n_inputs != 0
-            || m.alpha.len() % m.n_outputs != 0
+        if !m.inputs.len().is_multiple_of(m.n_inputs)
+            || !m.alpha.len().is_multiple_of(m.n_outputs)
             || m.inputs.len() / m.n_inputs != m.alpha.len() / m.n_outputs
             || m.alpha.is_empty()
         {

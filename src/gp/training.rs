@@ -171,7 +171,7 @@ mod tests {
         let bounds = [[-1.0, 1.0], [0.0, 3.0]];
         let pts = latin_hypercube(&bounds, 50, &mut rng);
         for (d, [lo, hi]) in bounds.iter().enumerate() {
-            let mut seen = vec![false; 50];
+            let mut seen = [false; 50];
             for p in &pts {
                 let s = ((p[d] - lo) / (hi - lo) * 50.0).floor() as usize;
                 assert!(!seen[s], "stratum {s} twice");
