@@ -9,5 +9,7 @@
 
 pub mod gp;
 pub mod plant;
+pub mod precision;
 pub mod report;
 pub mod sensors;
+pub mod uaic;

@@ -1,0 +1,491 @@
+//! The unbiased active inference controller (u-AIC): beliefs and control from descent on the
+//! variational free energy (METHOD.md section 4; the seed paper's eqs. 3-5, after ECC 2021).
+//!
+//! Beliefs mu (joint positions) and mu' (velocities), x = [mu, mu']. With diagonal precisions,
+//! ```text
+//! F = 1/2 ( sum_i w_i e_i^2 - ln w_i )  +  1/2 ( e_x' P_x e_x - ln|P_x| )  [+ 1/2 (P_u e_u^2 - ln P_u)]
+//! ```
+//! over the sensory channels i present this tick with w_i > 0 (encoders e = y_q - mu, tachometers
+//! e = y_qd - mu', camera e = y_v - g_v(mu)), and the state prior e_x = mu_x - x_hat with the
+//! constant-velocity prediction x_hat = [[I, dt I], [0, I]] mu_{x,k-1} (paper eq. 4). The
+//! "coupled" prediction (METHOD.md section 10) uses the current velocity belief instead:
+//! e_x = [mu - mu_{k-1} - dt mu', mu' - mu'_{k-1}].
+//!
+//! The target enters only through f* (the control law), never the belief: u = f*(mu, mu', mu_d)
+//! as in the authors' code (kappa_u -> infinity), or mu_u descends F with a finite kappa_u.
+//!
+//! Two belief updates: a Gauss-Newton step from the prediction (default; scale-free, lands on
+//! the minimum of F's quadratic model for eta = 1) and the paper's explicit gradient descent
+//! `mu_x <- mu_x + dt (D mu_x - kappa_mu dF/dmu_x)` (first-order Euler, kept for fidelity).
+//! Nothing here knows about rapier: feed readings, a target and precisions; get torques.
+
+mod pid;
+
+use std::sync::Arc;
+
+use nalgebra::{DMatrix, DVector};
+use serde::{Deserialize, Serialize};
+
+use crate::gp::GpModel;
+use crate::sensors::{Channel, ChannelLayout, Readings};
+pub use pid::{Pid, PidGains};
+
+/// How the belief descends the free energy each tick.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum UpdateScheme {
+    /// x = x_hat - eta H^-1 dF/dx at the prediction, H the Gauss-Newton Hessian.
+    GaussNewton,
+    /// x <- x + dt (D x - kappa_mu dF/dx) (the paper's explicit Euler gradient descent).
+    Gradient,
+}
+
+/// Which state prediction the prior uses.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Prediction {
+    /// x_hat = [mu_{k-1} + dt mu'_{k-1}, mu'_{k-1}] (the paper's eq. 4).
+    Paper,
+    /// Position prior residual mu - mu_{k-1} - dt mu' with the current velocity belief.
+    Coupled,
+}
+
+/// Controller settings. Defaults: Gauss-Newton with eta = 1, coupled prediction,
+/// P_mu = 1e8 (100x the encoders' precision: METHOD.md section 4), P_mu' = 1e4, u = f*,
+/// the paper arm's PID gains.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ControllerConfig {
+    pub update: UpdateScheme,
+    /// Gauss-Newton step length eta in (0, 1].
+    pub step: f64,
+    /// Gradient-descent gain kappa_mu (1/s), used by `update = "gradient"`.
+    pub kappa_mu: f64,
+    pub prediction: Prediction,
+    /// Precision of the position prior P_mu (1/rad^2).
+    pub prior_position_precision: f64,
+    /// Precision of the velocity prior P_mu' (s^2/rad^2).
+    pub prior_velocity_precision: f64,
+    /// Finite action gain kappa_u (1/s); absent: u = f* (the authors' kappa_u -> infinity).
+    pub kappa_u: Option<f64>,
+    /// Control precision P_u, used with a finite kappa_u.
+    pub control_precision: f64,
+    pub gains: PidGains,
+}
+
+impl Default for ControllerConfig {
+    fn default() -> Self {
+        Self {
+            update: UpdateScheme::GaussNewton,
+            step: 1.0,
+            kappa_mu: 200.0,
+            prediction: Prediction::Coupled,
+            prior_position_precision: 1e8,
+            prior_velocity_precision: 1e4,
+            kappa_u: None,
+            control_precision: 1.0,
+            gains: PidGains::paper(),
+        }
+    }
+}
+
+impl ControllerConfig {
+    /// Checks the settings for an arm of `n_joints`; returns the offending field and why.
+    pub fn validate(&self, n_joints: usize) -> Result<(), (String, String)> {
+        let positive = |name: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err((name.to_string(), format!("{v} must be finite and > 0")))
+            }
+        };
+        positive("step", self.step)?;
+        if self.step > 1.0 {
+            return Err(("step".into(), "must be <= 1".into()));
+        }
+        positive("kappa_mu", self.kappa_mu)?;
+        positive("prior_position_precision", self.prior_position_precision)?;
+        positive("prior_velocity_precision", self.prior_velocity_precision)?;
+        positive("control_precision", self.control_precision)?;
+        if let Some(k) = self.kappa_u {
+            positive("kappa_u", k)?;
+        }
+        self.gains
+            .validate(n_joints)
+            .map_err(|(f, m)| (format!("gains.{f}"), m))
+    }
+}
+
+/// What one controller tick produced.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TickReport {
+    /// Joint torques to apply.
+    pub torques: Vec<f64>,
+    /// Free energy at the updated belief (missing and zero-precision channels left out).
+    pub free_energy: f64,
+    /// Innovations y - h(x_hat): readings against the prediction, before the update.
+    pub innovations: Vec<Option<f64>>,
+    /// Residuals y - h(x) after the update (what the precision learners see).
+    pub residuals: Vec<Option<f64>>,
+    /// Posterior-variance correction per channel, c_i = (J H^-1 J')_ii.
+    pub corrections: Vec<f64>,
+    /// Whether the belief stayed finite (false: the update was refused).
+    pub finite: bool,
+}
+
+/// The u-AIC.
+pub struct Controller {
+    config: ControllerConfig,
+    layout: ChannelLayout,
+    gp: Arc<GpModel>,
+    dt: f64,
+    /// Belief x = [mu, mu'] and the previous tick's belief.
+    x: DVector<f64>,
+    x_prev: DVector<f64>,
+    /// The belief two ticks back (the gradient scheme's prior mean is A x_{k-2}).
+    x_prev2: DVector<f64>,
+    pid: Pid,
+    /// mu_u (the action belief) for a finite kappa_u.
+    mu_u: Vec<f64>,
+    f_star: Vec<f64>,
+    initialised: bool,
+    // Scratch, reused every tick.
+    hessian: DMatrix<f64>,
+    /// H^-1, the Laplace posterior covariance of the last update.
+    covariance: DMatrix<f64>,
+    rhs: DVector<f64>,
+    x_hat: DVector<f64>,
+    g: [f64; 2],
+    jac: Vec<f64>,
+    report: TickReport,
+}
+
+impl Controller {
+    /// A controller for `layout.n_joints` joints at tick length `dt`, with the camera model `gp`.
+    ///
+    /// # Panics
+    /// If the GP does not take one input per joint (validate before).
+    pub fn new(config: ControllerConfig, layout: ChannelLayout, gp: Arc<GpModel>, dt: f64) -> Self {
+        let n = layout.n_joints;
+        assert_eq!(gp.n_inputs, n, "the GP takes one input per joint");
+        assert_eq!(gp.n_outputs, 2, "the camera GP has two outputs");
+        let m = layout.len();
+        Self {
+            pid: Pid::new(config.gains.clone()),
+            config,
+            layout,
+            gp,
+            dt,
+            x: DVector::zeros(2 * n),
+            x_prev: DVector::zeros(2 * n),
+            x_prev2: DVector::zeros(2 * n),
+            mu_u: vec![0.0; n],
+            f_star: vec![0.0; n],
+            initialised: false,
+            hessian: DMatrix::zeros(2 * n, 2 * n),
+            covariance: DMatrix::zeros(2 * n, 2 * n),
+            rhs: DVector::zeros(2 * n),
+            x_hat: DVector::zeros(2 * n),
+            g: [0.0; 2],
+            jac: vec![0.0; 2 * n],
+            report: TickReport {
+                torques: vec![0.0; n],
+                free_energy: 0.0,
+                innovations: vec![None; m],
+                residuals: vec![None; m],
+                corrections: vec![0.0; m],
+                finite: true,
+            },
+        }
+    }
+
+    pub fn config(&self) -> &ControllerConfig {
+        &self.config
+    }
+
+    /// Position belief mu.
+    pub fn mu(&self) -> &[f64] {
+        &self.x.as_slice()[..self.layout.n_joints]
+    }
+
+    /// Velocity belief mu'.
+    pub fn mu_p(&self) -> &[f64] {
+        &self.x.as_slice()[self.layout.n_joints..]
+    }
+
+    /// The PID's integral torque per joint.
+    pub fn integral(&self) -> &[f64] {
+        self.pid.integral()
+    }
+
+    /// Starts the belief at the first readings (a missing reading starts at 0).
+    pub fn initialise(&mut self, readings: &Readings) {
+        let n = self.layout.n_joints;
+        for i in 0..n {
+            self.x[i] = readings.get(i).unwrap_or(0.0);
+            self.x[n + i] = readings.get(n + i).unwrap_or(0.0);
+        }
+        self.x_prev.copy_from(&self.x);
+        self.x_prev2.copy_from(&self.x);
+        self.initialised = true;
+    }
+
+    /// The sensory prediction of channel `c` at a state, given the GP output `g` at its mu.
+    fn predict_channel(&self, c: usize, x: &DVector<f64>, g: &[f64; 2]) -> f64 {
+        match self.layout.channel(c) {
+            Channel::Encoder(i) => x[i],
+            Channel::Tachometer(i) => x[self.layout.n_joints + i],
+            Channel::Camera(r) => g[r],
+        }
+    }
+
+    /// Adds w J_c' J_c to the Hessian and w J_c' e to the right-hand side.
+    fn accumulate(&mut self, c: usize, w: f64, e: f64) {
+        let n = self.layout.n_joints;
+        match self.layout.channel(c) {
+            Channel::Encoder(i) => {
+                self.hessian[(i, i)] += w;
+                self.rhs[i] += w * e;
+            }
+            Channel::Tachometer(i) => {
+                self.hessian[(n + i, n + i)] += w;
+                self.rhs[n + i] += w * e;
+            }
+            Channel::Camera(r) => {
+                let row = &self.jac[r * n..(r + 1) * n];
+                for a in 0..n {
+                    self.rhs[a] += w * row[a] * e;
+                    for b in 0..n {
+                        self.hessian[(a, b)] += w * row[a] * row[b];
+                    }
+                }
+            }
+        }
+    }
+
+    /// Fills the prior's Hessian (A' P_x A) into `self.hessian`.
+    fn prior_hessian(&mut self) {
+        let n = self.layout.n_joints;
+        let (pm, pv) = (
+            self.config.prior_position_precision,
+            self.config.prior_velocity_precision,
+        );
+        self.hessian.fill(0.0);
+        for i in 0..n {
+            match self.config.prediction {
+                Prediction::Paper => {
+                    self.hessian[(i, i)] = pm;
+                    self.hessian[(n + i, n + i)] = pv;
+                }
+                Prediction::Coupled => {
+                    // A = [[I, -dt I], [0, I]]: A' P A = [[Pm, -dt Pm], [-dt Pm, dt^2 Pm + Pv]].
+                    self.hessian[(i, i)] = pm;
+                    self.hessian[(i, n + i)] = -self.dt * pm;
+                    self.hessian[(n + i, i)] = -self.dt * pm;
+                    self.hessian[(n + i, n + i)] = self.dt * self.dt * pm + pv;
+                }
+            }
+        }
+    }
+
+    /// The prior residual e_x at `x` given the previous belief `prev` (paper: x - A prev;
+    /// coupled: A x - prev with A = [[I, -dt I], [0, I]]).
+    fn prior_residual(&self, x: &DVector<f64>, prev: &DVector<f64>, out: &mut [f64]) {
+        let n = self.layout.n_joints;
+        for i in 0..n {
+            let (mu, mv) = (x[i], x[n + i]);
+            let (pmu, pmv) = (prev[i], prev[n + i]);
+            out[i] = match self.config.prediction {
+                Prediction::Paper => mu - pmu - self.dt * pmv,
+                Prediction::Coupled => mu - pmu - self.dt * mv,
+            };
+            out[n + i] = mv - pmv;
+        }
+    }
+
+    /// One control tick: update the belief from `readings` with channel precisions
+    /// `precisions` (0 leaves a channel out), then compute the torques toward `target`.
+    ///
+    /// The first call initialises the belief from the readings.
+    pub fn step(&mut self, readings: &Readings, target: &[f64], precisions: &[f64]) -> &TickReport {
+        let n = self.layout.n_joints;
+        let m = self.layout.len();
+        debug_assert_eq!(precisions.len(), m);
+        if !self.initialised {
+            self.initialise(readings);
+        }
+        let dt = self.dt;
+
+        // Prediction x_hat = A x_{k-1} and the innovations against it.
+        for i in 0..n {
+            self.x_hat[i] = self.x[i] + dt * self.x[n + i];
+            self.x_hat[n + i] = self.x[n + i];
+        }
+        let mut g = [0.0; 2];
+        self.gp
+            .predict(&self.x_hat.as_slice()[..n], &mut g, &mut self.jac);
+        for c in 0..m {
+            self.report.innovations[c] = readings
+                .get(c)
+                .map(|y| y - self.predict_channel(c, &self.x_hat, &g));
+        }
+
+        let x_before = self.x.clone();
+        match self.config.update {
+            UpdateScheme::GaussNewton => {
+                // Quadratic model of F about x_hat (the prior residual vanishes there).
+                self.prior_hessian();
+                self.rhs.fill(0.0);
+                for c in 0..m {
+                    if let Some(r) = self.report.innovations[c]
+                        && precisions[c] > 0.0
+                    {
+                        self.accumulate(c, precisions[c], r);
+                    }
+                }
+                let Some(step) = self.solve_in_place() else {
+                    return self.refuse();
+                };
+                let eta = self.config.step;
+                let new = &self.x_hat + step * eta;
+                self.x_prev2.copy_from(&self.x_prev);
+                self.x_prev.copy_from(&self.x);
+                self.x = new;
+            }
+            UpdateScheme::Gradient => {
+                // Sensory residuals at the current belief x_{k-1}; prior mean A x_{k-2}.
+                let x_cur = self.x.clone();
+                self.gp
+                    .predict(&x_cur.as_slice()[..n], &mut g, &mut self.jac);
+                self.prior_hessian();
+                self.rhs.fill(0.0);
+                for c in 0..m {
+                    if let Some(y) = readings.get(c)
+                        && precisions[c] > 0.0
+                    {
+                        let e = y - self.predict_channel(c, &x_cur, &g);
+                        self.accumulate(c, precisions[c], e);
+                    }
+                }
+                // -dF/dx = sum w J' e - (dE_x/dx)' P_x e_x.
+                let mut ex = vec![0.0; 2 * n];
+                self.prior_residual(&x_cur, &self.x_prev, &mut ex);
+                let pm = self.config.prior_position_precision;
+                let pv = self.config.prior_velocity_precision;
+                let mut neg_grad = self.rhs.clone();
+                for i in 0..n {
+                    let (ep, ev) = (pm * ex[i], pv * ex[n + i]);
+                    neg_grad[i] -= ep;
+                    neg_grad[n + i] -= ev;
+                    if self.config.prediction == Prediction::Coupled {
+                        neg_grad[n + i] += dt * ep;
+                    }
+                }
+                let kappa = self.config.kappa_mu;
+                let mut new = x_cur.clone();
+                for i in 0..n {
+                    new[i] += dt * x_cur[n + i];
+                }
+                new += neg_grad * (dt * kappa);
+                self.x_prev2.copy_from(&self.x_prev);
+                self.x_prev.copy_from(&x_cur);
+                self.x = new;
+                // The Hessian at x_cur, for the posterior-variance corrections.
+                if self.factor_hessian().is_none() {
+                    return self.refuse();
+                }
+            }
+        }
+        if !self.x.iter().all(|v| v.is_finite()) {
+            self.x.copy_from(&x_before);
+            return self.refuse();
+        }
+
+        // Residuals after the update, the corrections c_i and F.
+        self.gp.predict_mean(&self.x.as_slice()[..n], &mut self.g);
+        self.corrections();
+        let mut free_energy = 0.0;
+        for c in 0..m {
+            let gg = self.g;
+            let e = readings
+                .get(c)
+                .map(|y| y - self.predict_channel(c, &self.x, &gg));
+            self.report.residuals[c] = e;
+            if let Some(e) = e
+                && precisions[c] > 0.0
+            {
+                free_energy += 0.5 * (precisions[c] * e * e - precisions[c].ln());
+            }
+        }
+        let mut ex = vec![0.0; 2 * n];
+        self.prior_residual(&self.x, &self.x_prev, &mut ex);
+        let pm = self.config.prior_position_precision;
+        let pv = self.config.prior_velocity_precision;
+        for i in 0..n {
+            free_energy += 0.5 * (pm * ex[i] * ex[i] - pm.ln());
+            free_energy += 0.5 * (pv * ex[n + i] * ex[n + i] - pv.ln());
+        }
+
+        // Control: f* on the updated belief; u = f* or mu_u descending F.
+        let (mu, mu_p) = self.x.as_slice().split_at(n);
+        self.pid.step(mu, mu_p, target, dt, &mut self.f_star);
+        match self.config.kappa_u {
+            None => self.report.torques.copy_from_slice(&self.f_star),
+            Some(kappa_u) => {
+                let pu = self.config.control_precision;
+                // Implicit in mu_u: stable for any kappa_u.
+                let a = dt * kappa_u * pu;
+                for i in 0..n {
+                    let e_u = self.mu_u[i] - self.f_star[i];
+                    self.mu_u[i] = (self.mu_u[i] + a * self.f_star[i]) / (1.0 + a);
+                    free_energy += 0.5 * (pu * e_u * e_u - pu.ln());
+                }
+                self.report.torques.copy_from_slice(&self.mu_u);
+            }
+        }
+        self.report.free_energy = free_energy;
+        self.report.finite = free_energy.is_finite();
+        &self.report
+    }
+
+    /// Factorises H (SPD), stores H^-1 and returns H^-1 rhs.
+    fn solve_in_place(&mut self) -> Option<DVector<f64>> {
+        self.factor_hessian()?;
+        Some(&self.covariance * &self.rhs)
+    }
+
+    /// Factorises H and stores H^-1 as the posterior covariance.
+    fn factor_hessian(&mut self) -> Option<()> {
+        let chol = self.hessian.clone().cholesky()?;
+        self.covariance = chol.inverse();
+        Some(())
+    }
+
+    /// c_i = (J_i H^-1 J_i')_ii from the last factorised Hessian.
+    fn corrections(&mut self) {
+        let n = self.layout.n_joints;
+        let cov = &self.covariance;
+        for c in 0..self.layout.len() {
+            self.report.corrections[c] = match self.layout.channel(c) {
+                Channel::Encoder(i) => cov[(i, i)],
+                Channel::Tachometer(i) => cov[(n + i, n + i)],
+                Channel::Camera(r) => {
+                    let row = &self.jac[r * n..(r + 1) * n];
+                    let mut s = 0.0;
+                    for a in 0..n {
+                        for b in 0..n {
+                            s += row[a] * cov[(a, b)] * row[b];
+                        }
+                    }
+                    s
+                }
+            };
+        }
+    }
+
+    fn refuse(&mut self) -> &TickReport {
+        self.report.finite = false;
+        self.report.torques.fill(0.0);
+        &self.report
+    }
+}
