@@ -87,60 +87,109 @@ pub struct Calibration {
     pub groups: Vec<GroupCalibration>,
 }
 
-impl Calibration {
-    /// Per-tick moments of innovation series: `runs[r][tick][channel]`. Missing values are
-    /// skipped; windows of +-`pool_ticks` are pooled.
-    pub fn from_runs(
-        layout: ChannelLayout,
-        runs: &[Vec<Vec<Option<f64>>>],
-        dt: f64,
-        pool_ticks: usize,
-        fingerprint: String,
-    ) -> Self {
-        let ticks = runs.iter().map(Vec::len).min().unwrap_or(0);
+/// Sums of healthy innovations per tick and group, filled run by run.
+#[derive(Clone, Debug)]
+pub struct CalibrationAccumulator {
+    layout: ChannelLayout,
+    ticks: usize,
+    runs: usize,
+    /// Per group: count per tick, sums (ticks x dim), sums of outer products (ticks x dim x dim).
+    counts: Vec<Vec<f64>>,
+    sums: Vec<Vec<f64>>,
+    outer: Vec<Vec<f64>>,
+}
+
+impl CalibrationAccumulator {
+    pub fn new(layout: ChannelLayout, ticks: usize) -> Self {
+        let dims: Vec<usize> = SensorGroup::ALL
+            .iter()
+            .map(|&g| layout.group_range(g).len())
+            .collect();
+        Self {
+            layout,
+            ticks,
+            runs: 0,
+            counts: dims.iter().map(|_| vec![0.0; ticks]).collect(),
+            sums: dims.iter().map(|d| vec![0.0; ticks * d]).collect(),
+            outer: dims.iter().map(|d| vec![0.0; ticks * d * d]).collect(),
+        }
+    }
+
+    /// Adds one tick of one run (a group with a missing channel is skipped).
+    pub fn add(&mut self, tick: usize, innovations: &[Option<f64>]) {
+        if tick >= self.ticks {
+            return;
+        }
+        for (gi, &group) in SensorGroup::ALL.iter().enumerate() {
+            let range = self.layout.group_range(group);
+            let dim = range.len();
+            if range.clone().any(|c| innovations[c].is_none()) {
+                continue;
+            }
+            self.counts[gi][tick] += 1.0;
+            for (a, ca) in range.clone().enumerate() {
+                let va = innovations[ca].unwrap_or(0.0);
+                self.sums[gi][tick * dim + a] += va;
+                for (b, cb) in range.clone().enumerate() {
+                    self.outer[gi][(tick * dim + a) * dim + b] += va * innovations[cb].unwrap_or(0.0);
+                }
+            }
+        }
+    }
+
+    /// Marks the end of a run.
+    pub fn end_run(&mut self) {
+        self.runs += 1;
+    }
+
+    /// Adds another accumulator (the runs of a parallel batch), element by element.
+    pub fn merge(&mut self, other: &Self) {
+        for (a, b) in [
+            (&mut self.counts, &other.counts),
+            (&mut self.sums, &other.sums),
+            (&mut self.outer, &other.outer),
+        ] {
+            for (x, y) in a.iter_mut().zip(b) {
+                for (u, v) in x.iter_mut().zip(y) {
+                    *u += v;
+                }
+            }
+        }
+        self.runs += other.runs;
+    }
+
+    /// Per-tick moments pooled over +-`pool_ticks`.
+    pub fn finish(&self, dt: f64, pool_ticks: usize, fingerprint: String) -> Calibration {
+        let ticks = self.ticks;
         let groups = SensorGroup::ALL
             .iter()
-            .map(|&group| {
-                let channels: Vec<usize> = layout.group_range(group).collect();
+            .enumerate()
+            .map(|(gi, &group)| {
+                let channels: Vec<usize> = self.layout.group_range(group).collect();
                 let dim = channels.len();
                 let mut mean = vec![0.0; ticks * dim];
                 let mut covariance = vec![0.0; ticks * dim * dim];
                 for t in 0..ticks {
                     let lo = t.saturating_sub(pool_ticks);
-                    let hi = (t + pool_ticks).min(ticks - 1);
-                    let mut count = 0.0;
-                    let mut m = vec![0.0; dim];
-                    for run in runs {
-                        for row in &run[lo..=hi] {
-                            if channels.iter().all(|&c| row[c].is_some()) {
-                                for (j, &c) in channels.iter().enumerate() {
-                                    m[j] += row[c].unwrap_or(0.0);
-                                }
-                                count += 1.0;
-                            }
-                        }
-                    }
+                    let hi = (t + pool_ticks).min(ticks.saturating_sub(1));
+                    let count: f64 = self.counts[gi][lo..=hi].iter().sum();
                     if count < 2.0 {
                         continue;
                     }
-                    m.iter_mut().for_each(|v| *v /= count);
-                    let mut cov = vec![0.0; dim * dim];
-                    for run in runs {
-                        for row in &run[lo..=hi] {
-                            if channels.iter().all(|&c| row[c].is_some()) {
-                                for a in 0..dim {
-                                    let da = row[channels[a]].unwrap_or(0.0) - m[a];
-                                    for b in 0..dim {
-                                        let db = row[channels[b]].unwrap_or(0.0) - m[b];
-                                        cov[a * dim + b] += da * db;
-                                    }
-                                }
-                            }
+                    let mut m = vec![0.0; dim];
+                    for (a, m_a) in m.iter_mut().enumerate() {
+                        *m_a = (lo..=hi).map(|u| self.sums[gi][u * dim + a]).sum::<f64>() / count;
+                    }
+                    for a in 0..dim {
+                        for b in 0..dim {
+                            let s: f64 = (lo..=hi)
+                                .map(|u| self.outer[gi][(u * dim + a) * dim + b])
+                                .sum();
+                            covariance[(t * dim + a) * dim + b] =
+                                (s - count * m[a] * m[b]) / (count - 1.0);
                         }
                     }
-                    cov.iter_mut().for_each(|v| *v /= count - 1.0);
                     mean[t * dim..(t + 1) * dim].copy_from_slice(&m);
-                    covariance[t * dim * dim..(t + 1) * dim * dim].copy_from_slice(&cov);
                 }
                 GroupCalibration {
                     group: group.name().to_string(),
@@ -150,14 +199,56 @@ impl Calibration {
                 }
             })
             .collect();
-        Self {
+        Calibration {
             fingerprint,
             dt,
             ticks,
-            runs: runs.len(),
+            runs: self.runs,
             pool_ticks,
             groups,
         }
+    }
+}
+
+impl Calibration {
+    /// Per-tick moments of innovation series `runs[r][tick][channel]` (missing values skipped),
+    /// pooled over +-`pool_ticks`.
+    pub fn from_runs(
+        layout: ChannelLayout,
+        runs: &[Vec<Vec<Option<f64>>>],
+        dt: f64,
+        pool_ticks: usize,
+        fingerprint: String,
+    ) -> Self {
+        let ticks = runs.iter().map(Vec::len).min().unwrap_or(0);
+        let mut acc = CalibrationAccumulator::new(layout, ticks);
+        for run in runs {
+            for (t, row) in run.iter().enumerate() {
+                acc.add(t, row);
+            }
+            acc.end_run();
+        }
+        acc.finish(dt, pool_ticks, fingerprint)
+    }
+
+    /// The calibration as JSON.
+    pub fn to_json(&self) -> String {
+        serde_json::to_string(self).expect("a calibration always serialises")
+    }
+
+    /// Reads a calibration from JSON; checks its shape.
+    pub fn from_json(text: &str) -> Result<Self, String> {
+        let c: Calibration = serde_json::from_str(text).map_err(|e| e.to_string())?;
+        for g in &c.groups {
+            let dim = g.channels.len();
+            if g.mean.len() != c.ticks * dim || g.covariance.len() != c.ticks * dim * dim {
+                return Err(format!("group {} has the wrong number of values", g.group));
+            }
+        }
+        if c.groups.len() != 3 {
+            return Err("expected the enc, tach and cam groups".into());
+        }
+        Ok(c)
     }
 }
 

@@ -12,7 +12,9 @@ pub mod detector;
 
 use serde::{Deserialize, Serialize};
 
-pub use detector::{Calibration, Detection, Detector, DetectorConfig, Isolation};
+pub use detector::{
+    Calibration, CalibrationAccumulator, Detection, Detector, DetectorConfig, Isolation,
+};
 
 /// What a learner sees after each tick's belief update.
 #[derive(Clone, Copy, Debug)]

@@ -213,6 +213,11 @@ impl Controller {
         &self.x.as_slice()[self.layout.n_joints..]
     }
 
+    /// What the last [`Self::step`] produced.
+    pub fn last_report(&self) -> &TickReport {
+        &self.report
+    }
+
     /// The PID's integral torque per joint.
     pub fn integral(&self) -> &[f64] {
         self.pid.integral()

@@ -1,0 +1,382 @@
+//! Scenario files (TOML): what to simulate, with every default in one place and one `validate`.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use super::{Method, ScenarioError};
+use crate::precision::{DetectorConfig, Isolation, PrecisionBounds};
+use crate::sensors::{CameraConfig, FaultSpec, SensorConfig};
+use crate::uaic::ControllerConfig;
+
+/// A scenario: the arm, its start and targets, sensors, camera, GP, controller, precision
+/// method, detector and faults, duration, tick and seed.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Scenario {
+    /// Short name (used for output folders).
+    pub name: String,
+    #[serde(default)]
+    pub description: String,
+    /// Run length (s).
+    pub duration: f64,
+    /// Control tick and physics step (s).
+    #[serde(default = "default_dt")]
+    pub dt: f64,
+    /// Seed of the sensor noise (the GP has its own).
+    #[serde(default = "default_seed")]
+    pub seed: u64,
+    pub robot: RobotConfig,
+    pub initial: InitialState,
+    /// Set points: from `time` on, the target is `q`.
+    pub targets: Vec<Target>,
+    #[serde(default)]
+    pub sensors: SensorConfig,
+    #[serde(default)]
+    pub camera: CameraConfig,
+    #[serde(default)]
+    pub gp: GpConfig,
+    #[serde(default)]
+    pub controller: ControllerConfig,
+    #[serde(default)]
+    pub precision: PrecisionConfig,
+    #[serde(default)]
+    pub detector: DetectorSettings,
+    #[serde(default)]
+    pub faults: Vec<FaultSpec>,
+}
+
+fn default_dt() -> f64 {
+    1e-3
+}
+
+fn default_seed() -> u64 {
+    1
+}
+
+/// The arm.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RobotConfig {
+    /// URDF path, relative to the scenario file.
+    pub urdf: PathBuf,
+    #[serde(default = "default_ee")]
+    pub ee_link: String,
+    #[serde(default)]
+    pub ee_offset: [f64; 3],
+    #[serde(default = "default_gravity")]
+    pub gravity: [f64; 3],
+    #[serde(default = "default_iterations")]
+    pub solver_iterations: usize,
+}
+
+fn default_ee() -> String {
+    "ee".into()
+}
+
+fn default_gravity() -> [f64; 3] {
+    [0.0, 0.0, -9.81]
+}
+
+fn default_iterations() -> usize {
+    crate::plant::ArmOptions::default().solver_iterations
+}
+
+/// The arm's state at t = 0.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InitialState {
+    pub q: Vec<f64>,
+    /// Zeros when absent.
+    #[serde(default)]
+    pub qd: Option<Vec<f64>>,
+}
+
+/// A set point.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Target {
+    pub time: f64,
+    pub q: Vec<f64>,
+}
+
+/// The camera GP: how to get it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct GpConfig {
+    /// Training points.
+    pub points: usize,
+    /// Joint-space training box [lower, upper] per joint; default: the start and the targets
+    /// widened by `margin`.
+    pub training_box: Option<Vec<[f64; 2]>>,
+    /// Margin (rad) around the start and targets when the box is derived.
+    pub margin: f64,
+    /// Seed of the training set (independent of the run seed: every run shares the GP).
+    pub seed: u64,
+    /// A saved model to load instead of training (relative to the scenario file).
+    pub model: Option<PathBuf>,
+    /// Hyperparameter-fit restarts.
+    pub restarts: usize,
+}
+
+impl Default for GpConfig {
+    fn default() -> Self {
+        Self {
+            points: 200,
+            training_box: None,
+            margin: 0.3,
+            seed: 7,
+            model: None,
+            restarts: 3,
+        }
+    }
+}
+
+/// The precision method and its parameters.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PrecisionConfig {
+    pub method: Method,
+    /// Gradient step kappa_zeta (1/s) of `pl-always` and `pl-detect`.
+    pub kappa_zeta: f64,
+    /// Add the posterior-variance correction c_i to the squared residuals.
+    pub correction: bool,
+    /// Forgetting factor rho of `bayes`.
+    pub rho: f64,
+    /// Window length k (ticks) of `window`.
+    pub window: usize,
+    /// Lower clamp of every learner, as a multiple of the nominal precision.
+    pub min_ratio: f64,
+    /// Upper clamp of every learner, as a multiple of the nominal precision.
+    pub max_ratio: f64,
+}
+
+impl PrecisionConfig {
+    /// The learners' clamp.
+    pub fn bounds(&self) -> PrecisionBounds {
+        PrecisionBounds {
+            min_ratio: self.min_ratio,
+            max_ratio: self.max_ratio,
+        }
+    }
+}
+
+impl Default for PrecisionConfig {
+    fn default() -> Self {
+        Self {
+            method: Method::PlAlways,
+            kappa_zeta: 10.0,
+            correction: true,
+            rho: 0.999,
+            window: 100,
+            min_ratio: PrecisionBounds::default().min_ratio,
+            max_ratio: PrecisionBounds::default().max_ratio,
+        }
+    }
+}
+
+/// Detector settings plus an optional calibration file.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DetectorSettings {
+    /// Chebyshev false-alarm bound: alarm when d_M > sqrt(n / alpha).
+    pub alpha: f64,
+    /// `channel` (largest normalised residual) or `group` (the ECC recovery).
+    pub isolation: Isolation,
+    /// Half-width (ticks) of the window the per-step moments are pooled over.
+    pub pool_ticks: usize,
+    /// Healthy runs for an on-the-fly calibration.
+    pub calibration_runs: usize,
+    /// A calibration file (relative to the scenario file); default: calibrate on the fly.
+    pub calibration: Option<PathBuf>,
+}
+
+impl Default for DetectorSettings {
+    fn default() -> Self {
+        let d = DetectorConfig::default();
+        Self {
+            alpha: d.alpha,
+            isolation: d.isolation,
+            pool_ticks: d.pool_ticks,
+            calibration_runs: d.calibration_runs,
+            calibration: None,
+        }
+    }
+}
+
+impl DetectorSettings {
+    /// The detector's configuration.
+    pub fn config(&self) -> DetectorConfig {
+        DetectorConfig {
+            alpha: self.alpha,
+            isolation: self.isolation,
+            pool_ticks: self.pool_ticks,
+            calibration_runs: self.calibration_runs,
+        }
+    }
+}
+
+impl Scenario {
+    /// Number of ticks: round(duration / dt).
+    pub fn ticks(&self) -> u64 {
+        (self.duration / self.dt).round() as u64
+    }
+
+    /// The target in force at time t.
+    pub fn target_at(&self, t: f64) -> &[f64] {
+        let mut current = &self.targets[0].q;
+        for target in &self.targets {
+            if target.time <= t + 1e-9 {
+                current = &target.q;
+            }
+        }
+        current
+    }
+
+    /// Checks everything that does not need the arm; `n_joints` the arm's joint count.
+    pub fn validate(&self, n_joints: usize, file: &Path) -> Result<(), ScenarioError> {
+        let bad = |field: &str, message: String| ScenarioError::Invalid {
+            path: file.to_path_buf(),
+            field: field.to_string(),
+            message,
+        };
+        let positive = |field: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(bad(field, format!("{v} must be finite and > 0")))
+            }
+        };
+        let finite_vec = |field: &str, v: &[f64], len: usize| {
+            if v.len() != len {
+                return Err(bad(
+                    field,
+                    format!("has {} values; the arm has {len} joints", v.len()),
+                ));
+            }
+            if v.iter().all(|x| x.is_finite()) {
+                Ok(())
+            } else {
+                Err(bad(field, "values must be finite".into()))
+            }
+        };
+        if self.name.is_empty()
+            || !self
+                .name
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || "_-.".contains(c))
+        {
+            return Err(bad(
+                "name",
+                "must be non-empty letters, digits, '_', '-' or '.'".into(),
+            ));
+        }
+        positive("dt", self.dt)?;
+        positive("duration", self.duration)?;
+        if self.duration / self.dt > 1e8 {
+            return Err(bad("duration", "more than 1e8 ticks".into()));
+        }
+        if self.dt > 0.1 {
+            return Err(bad("dt", "must be <= 0.1 s".into()));
+        }
+        if !self.robot.ee_offset.iter().all(|v| v.is_finite()) {
+            return Err(bad("robot.ee_offset", "values must be finite".into()));
+        }
+        if !self.robot.gravity.iter().all(|v| v.is_finite()) {
+            return Err(bad("robot.gravity", "values must be finite".into()));
+        }
+        if self.robot.solver_iterations == 0 {
+            return Err(bad("robot.solver_iterations", "must be >= 1".into()));
+        }
+        finite_vec("initial.q", &self.initial.q, n_joints)?;
+        if let Some(qd) = &self.initial.qd {
+            finite_vec("initial.qd", qd, n_joints)?;
+        }
+        if self.targets.is_empty() {
+            return Err(bad("targets", "at least one target is needed".into()));
+        }
+        let mut last = f64::NEG_INFINITY;
+        for (i, t) in self.targets.iter().enumerate() {
+            let field = format!("targets[{i}]");
+            finite_vec(&format!("{field}.q"), &t.q, n_joints)?;
+            if !t.time.is_finite() || t.time < 0.0 {
+                return Err(bad(&format!("{field}.time"), "must be finite and >= 0".into()));
+            }
+            if t.time < last {
+                return Err(bad(
+                    &format!("{field}.time"),
+                    "targets must be in time order".into(),
+                ));
+            }
+            last = t.time;
+        }
+        self.sensors
+            .validate()
+            .map_err(|(f, m)| bad(&format!("sensors.{f}"), m))?;
+        self.camera
+            .validate()
+            .map_err(|(f, m)| bad(&format!("camera.{f}"), m))?;
+        let gp = &self.gp;
+        if gp.model.is_none() {
+            if gp.points < 2 * n_joints + 2 {
+                return Err(bad(
+                    "gp.points",
+                    format!("must be >= {} for {n_joints} joints", 2 * n_joints + 2),
+                ));
+            }
+            if gp.points > 5000 {
+                return Err(bad("gp.points", "more than 5000 is refused".into()));
+            }
+            if !(gp.margin.is_finite() && gp.margin >= 0.0) {
+                return Err(bad("gp.margin", "must be finite and >= 0".into()));
+            }
+            if let Some(b) = &gp.training_box {
+                if b.len() != n_joints {
+                    return Err(bad(
+                        "gp.training_box",
+                        format!("has {} rows; the arm has {n_joints} joints", b.len()),
+                    ));
+                }
+                if !b.iter().all(|[lo, hi]| lo.is_finite() && hi.is_finite() && lo < hi) {
+                    return Err(bad(
+                        "gp.training_box",
+                        "each row must be [lower, upper] with lower < upper".into(),
+                    ));
+                }
+            }
+            if gp.restarts == 0 {
+                return Err(bad("gp.restarts", "must be >= 1".into()));
+            }
+        }
+        self.controller
+            .validate(n_joints)
+            .map_err(|(f, m)| bad(&format!("controller.{f}"), m))?;
+        let p = &self.precision;
+        positive("precision.kappa_zeta", p.kappa_zeta)?;
+        if !(p.rho > 0.0 && p.rho < 1.0) {
+            return Err(bad("precision.rho", "must be in (0, 1)".into()));
+        }
+        if p.window == 0 {
+            return Err(bad("precision.window", "must be >= 1".into()));
+        }
+        let b = p.bounds();
+        if !(b.min_ratio.is_finite() && b.min_ratio > 0.0) {
+            return Err(bad("precision.min_ratio", "must be finite and > 0".into()));
+        }
+        if !(b.max_ratio.is_finite() && b.max_ratio >= b.min_ratio) {
+            return Err(bad(
+                "precision.max_ratio",
+                "must be finite and >= min_ratio".into(),
+            ));
+        }
+        self.detector
+            .config()
+            .validate()
+            .map_err(|(f, m)| bad(&format!("detector.{f}"), m))?;
+        for (i, f) in self.faults.iter().enumerate() {
+            f.to_fault(n_joints)
+                .map_err(|(field, m)| bad(&format!("faults[{i}].{field}"), m))?;
+        }
+        Ok(())
+    }
+}

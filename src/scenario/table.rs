@@ -1,0 +1,1 @@
+//! Monte Carlo tables: every method over many seeds (filled in below).
