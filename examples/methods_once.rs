@@ -1,10 +1,13 @@
 //! Every method once on a scenario (development aid):
 //! `cargo run --release --example methods_once -- [SCENARIO] [SEED] [KEY=VALUE ...]`
-use aift::scenario::{calibrate::calibrate, run, LoadedScenario, Method, NoObserver, RunSetup};
+use aift::scenario::{LoadedScenario, Method, NoObserver, RunSetup, calibrate::calibrate, run};
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let path = args.first().cloned().unwrap_or_else(|| "assets/scenarios/paper_encoder_freeze.toml".into());
+    let path = args
+        .first()
+        .cloned()
+        .unwrap_or_else(|| "assets/scenarios/paper_encoder_freeze.toml".into());
     let seed: u64 = args.get(1).and_then(|s| s.parse().ok()).unwrap_or(1);
     let overrides: Vec<String> = args.iter().skip(2).cloned().collect();
     let loaded = LoadedScenario::from_file(std::path::Path::new(&path), &overrides).unwrap();
@@ -16,12 +19,26 @@ fn main() {
         let r = run(&setup, method, seed, Some(&cal), &mut NoObserver).unwrap();
         println!(
             "{:14} {:9} mse {:?} final {:?} det {:?} iso {:?} health {:?} min5 {:?} {:.0} t/s",
-            method.name(), r.outcome.name(),
-            r.mse_per_joint.iter().map(|v| format!("{v:.2e}")).collect::<Vec<_>>(),
-            r.final_error_per_joint.iter().map(|v| format!("{v:.4}")).collect::<Vec<_>>(),
-            r.detected_at, r.isolated_channel,
-            r.final_health.iter().map(|v| format!("{v:.2e}")).collect::<Vec<_>>(),
-            r.min_health_last_5s.iter().map(|v| format!("{v:.2}")).collect::<Vec<_>>(),
+            method.name(),
+            r.outcome.name(),
+            r.mse_per_joint
+                .iter()
+                .map(|v| format!("{v:.2e}"))
+                .collect::<Vec<_>>(),
+            r.final_error_per_joint
+                .iter()
+                .map(|v| format!("{v:.4}"))
+                .collect::<Vec<_>>(),
+            r.detected_at,
+            r.isolated_channel,
+            r.final_health
+                .iter()
+                .map(|v| format!("{v:.2e}"))
+                .collect::<Vec<_>>(),
+            r.min_health_last_5s
+                .iter()
+                .map(|v| format!("{v:.2}"))
+                .collect::<Vec<_>>(),
             r.ticks_per_second()
         );
     }

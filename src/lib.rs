@@ -10,7 +10,7 @@
 pub mod gp;
 pub mod plant;
 pub mod precision;
-pub mod scenario;
 pub mod report;
+pub mod scenario;
 pub mod sensors;
 pub mod uaic;

@@ -131,7 +131,8 @@ impl CalibrationAccumulator {
                 let va = innovations[ca].unwrap_or(0.0);
                 self.sums[gi][tick * dim + a] += va;
                 for (b, cb) in range.clone().enumerate() {
-                    self.outer[gi][(tick * dim + a) * dim + b] += va * innovations[cb].unwrap_or(0.0);
+                    self.outer[gi][(tick * dim + a) * dim + b] +=
+                        va * innovations[cb].unwrap_or(0.0);
                 }
             }
         }

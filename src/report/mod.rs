@@ -3,6 +3,10 @@
 //! Every file is written atomically: into a temporary file beside the target, then renamed, so a
 //! failure never leaves a half-written output.
 
+pub mod plots;
+pub mod run_files;
+pub mod table_files;
+
 use std::io::Write;
 use std::path::{Path, PathBuf};
 

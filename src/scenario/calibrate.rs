@@ -4,7 +4,7 @@
 use rayon::prelude::*;
 
 use super::runner::{Observer, TickRecord};
-use super::{fingerprint, Method, RunSetup, ScenarioError};
+use super::{Method, RunSetup, ScenarioError, fingerprint};
 use crate::precision::{Calibration, CalibrationAccumulator};
 use crate::sensors::ChannelLayout;
 

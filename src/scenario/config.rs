@@ -300,7 +300,10 @@ impl Scenario {
             let field = format!("targets[{i}]");
             finite_vec(&format!("{field}.q"), &t.q, n_joints)?;
             if !t.time.is_finite() || t.time < 0.0 {
-                return Err(bad(&format!("{field}.time"), "must be finite and >= 0".into()));
+                return Err(bad(
+                    &format!("{field}.time"),
+                    "must be finite and >= 0".into(),
+                ));
             }
             if t.time < last {
                 return Err(bad(
@@ -337,7 +340,10 @@ impl Scenario {
                         format!("has {} rows; the arm has {n_joints} joints", b.len()),
                     ));
                 }
-                if !b.iter().all(|[lo, hi]| lo.is_finite() && hi.is_finite() && lo < hi) {
+                if !b
+                    .iter()
+                    .all(|[lo, hi]| lo.is_finite() && hi.is_finite() && lo < hi)
+                {
                     return Err(bad(
                         "gp.training_box",
                         "each row must be [lower, upper] with lower < upper".into(),

@@ -6,6 +6,7 @@
 //! faults). [`runner`] runs one (method, seed); [`calibrate`] makes the detector's healthy
 //! statistics; [`table`] runs every method over many seeds.
 
+pub mod bench;
 pub mod calibrate;
 pub mod config;
 mod method;
@@ -17,7 +18,7 @@ use std::sync::Arc;
 
 pub use config::{GpConfig, PrecisionConfig, RobotConfig, Scenario, Target};
 pub use method::Method;
-pub use runner::{run, NoObserver, Observer, Outcome, RunResult, TickRecord, TrajectoryRecorder};
+pub use runner::{NoObserver, Observer, Outcome, RunResult, TickRecord, TrajectoryRecorder, run};
 
 use crate::gp::{self, GpError, GpModel};
 use crate::plant::{self, ArmModel, ArmOptions, PlantError};
@@ -139,12 +140,12 @@ impl LoadedScenario {
 
     /// Loads the scenario's URDF.
     pub fn arm_model(&self) -> Result<ArmModel, ScenarioError> {
-        let (path, text) = self.read_relative(&self.scenario.robot.urdf).map_err(|source| {
-            PlantError::Unreadable {
+        let (path, text) = self
+            .read_relative(&self.scenario.robot.urdf)
+            .map_err(|source| PlantError::Unreadable {
                 path: self.resolve(&self.scenario.robot.urdf),
                 source,
-            }
-        })?;
+            })?;
         Ok(plant::parse_urdf(&text, &path)?)
     }
 }
@@ -172,10 +173,12 @@ pub fn parse_scenario(
 /// Applies one `KEY=VALUE` to the TOML table. VALUE is read as TOML (`3`, `[1, 2]`, `true`,
 /// `"text"`), falling back to a bare string.
 fn apply_override(table: &mut toml::Table, item: &str) -> Result<(), ScenarioError> {
-    let (key, value) = item.split_once('=').ok_or_else(|| ScenarioError::Override {
-        key: item.to_string(),
-        message: "expected KEY=VALUE".into(),
-    })?;
+    let (key, value) = item
+        .split_once('=')
+        .ok_or_else(|| ScenarioError::Override {
+            key: item.to_string(),
+            message: "expected KEY=VALUE".into(),
+        })?;
     let key = key.trim();
     let err = |message: String| ScenarioError::Override {
         key: key.to_string(),

@@ -22,7 +22,10 @@ use crate::uaic::Controller;
 pub enum Outcome {
     Completed,
     /// The state or belief left any sane range at `tick`.
-    Diverged { tick: u64, reason: String },
+    Diverged {
+        tick: u64,
+        reason: String,
+    },
 }
 
 impl Outcome {
@@ -126,7 +129,11 @@ impl Observer for TrajectoryRecorder {
                 .map(|(w, n)| precision::health(*w, *n)),
         );
         row.push(r.free_energy);
-        row.push(if r.detection.fired_tick.is_some() { 1.0 } else { 0.0 });
+        row.push(if r.detection.fired_tick.is_some() {
+            1.0
+        } else {
+            0.0
+        });
         row.extend(
             r.detection
                 .normalised_distance
@@ -298,9 +305,8 @@ pub fn run(
             .faults
             .iter()
             .filter_map(|f| match f.target {
-                FaultTarget::One(Channel::Encoder(i)) | FaultTarget::One(Channel::Tachometer(i)) => {
-                    Some(i)
-                }
+                FaultTarget::One(Channel::Encoder(i))
+                | FaultTarget::One(Channel::Tachometer(i)) => Some(i),
                 _ => None,
             })
             .collect();
@@ -408,7 +414,13 @@ pub fn run(
     let mse_post_fault_per_joint = first_fault.map(|_| {
         sq_post
             .iter()
-            .map(|s| if post_count > 0 { s / post_count as f64 } else { f64::NAN })
+            .map(|s| {
+                if post_count > 0 {
+                    s / post_count as f64
+                } else {
+                    f64::NAN
+                }
+            })
             .collect()
     });
     let mean_over = |joints: &[usize]| {

@@ -18,6 +18,102 @@ pub enum Command {
     CheckUrdf(CheckUrdfArgs),
     /// Open-loop run of a URDF arm with constant joint torques, written as CSV.
     Simulate(SimulateArgs),
+    /// Run a scenario with one method and seed; write trajectory, summary, plots.
+    Run(RunArgs),
+    /// Run every method over many seeds; write the table beside the paper's Table 1.
+    Table(TableArgs),
+    /// Calibrate the fault detector on healthy runs of a scenario.
+    Calibrate(CalibrateArgs),
+    /// Train a scenario's camera GP and save it.
+    TrainGp(TrainGpArgs),
+    /// Measure the cost of each stage and of the closed loop.
+    Bench(BenchArgs),
+}
+
+/// The scenario and overrides every scenario command takes.
+#[derive(Debug, Args)]
+pub struct ScenarioArgs {
+    /// Scenario file (TOML); default: the embedded paper_encoder_freeze scenario.
+    pub scenario: Option<PathBuf>,
+    /// Override a scenario value, e.g. `--set controller.step=0.5` (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE", allow_hyphen_values = true)]
+    pub set: Vec<String>,
+}
+
+#[derive(Debug, Args)]
+pub struct RunArgs {
+    #[command(flatten)]
+    pub scenario: ScenarioArgs,
+    /// Method: no-ft, pl-always, pl-detect, deterministic, bayes, window, oracle (default: the
+    /// scenario's, pl-always unless it says otherwise).
+    #[arg(long)]
+    pub method: Option<String>,
+    /// Sensor-noise seed (default: the scenario's).
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Output folder (default: runs/<scenario>-<method>-<seed>/).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Write into a non-empty output folder.
+    #[arg(long)]
+    pub force: bool,
+    /// Detector calibration file (pl-detect, deterministic); default: calibrate on the fly.
+    #[arg(long)]
+    pub calib: Option<PathBuf>,
+}
+
+#[derive(Debug, Args)]
+pub struct TableArgs {
+    #[command(flatten)]
+    pub scenario: ScenarioArgs,
+    /// Number of seeds (the scenario's seed and the ones after it).
+    #[arg(long, default_value_t = 20)]
+    pub seeds: usize,
+    /// Methods, comma-separated (default: all seven).
+    #[arg(long, value_delimiter = ',')]
+    pub methods: Vec<String>,
+    /// Output folder (default: tables/<scenario>/).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Write into a non-empty output folder.
+    #[arg(long)]
+    pub force: bool,
+    /// Detector calibration file; default: calibrate on the fly.
+    #[arg(long)]
+    pub calib: Option<PathBuf>,
+}
+
+#[derive(Debug, Args)]
+pub struct CalibrateArgs {
+    #[command(flatten)]
+    pub scenario: ScenarioArgs,
+    /// Healthy runs (default: the scenario's detector.calibration_runs, 50).
+    #[arg(long)]
+    pub runs: Option<usize>,
+    /// Output JSON file.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+#[derive(Debug, Args)]
+pub struct TrainGpArgs {
+    #[command(flatten)]
+    pub scenario: ScenarioArgs,
+    /// Training points (default: the scenario's gp.points).
+    #[arg(long)]
+    pub points: Option<usize>,
+    /// Output JSON file.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+#[derive(Debug, Args)]
+pub struct BenchArgs {
+    #[command(flatten)]
+    pub scenario: ScenarioArgs,
+    /// Ticks per measured stage.
+    #[arg(long, default_value_t = 20_000)]
+    pub ticks: u64,
 }
 
 #[derive(Debug, Args)]

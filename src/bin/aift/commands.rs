@@ -1,12 +1,23 @@
 //! The commands: each parses nothing itself, calls the library, prints, and maps errors to exit
 //! codes.
 
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
 use anyhow::{Context, anyhow};
 
 use aift::plant::{self, Arm, ArmOptions};
-use aift::report;
+use aift::precision::Calibration;
+use aift::report::{self, run_files, table_files};
+use aift::scenario::{
+    self, LoadedScenario, Method, RunSetup, TrajectoryRecorder, calibrate, table,
+};
+use aift::sensors::ChannelLayout;
 
-use crate::args::{CheckUrdfArgs, Cli, Command, SimulateArgs};
+use crate::args::{
+    BenchArgs, CalibrateArgs, CheckUrdfArgs, Cli, Command, RunArgs, ScenarioArgs, SimulateArgs,
+    TableArgs, TrainGpArgs,
+};
 
 /// A failed command: the error and the exit code it maps to.
 pub struct Failure {
@@ -34,7 +45,352 @@ pub fn dispatch(cli: Cli) -> Result<(), Failure> {
     match cli.command {
         Command::CheckUrdf(args) => check_urdf(args),
         Command::Simulate(args) => simulate(args),
+        Command::Run(args) => run(args),
+        Command::Table(args) => table(args),
+        Command::Calibrate(args) => calibrate_cmd(args),
+        Command::TrainGp(args) => train_gp(args),
+        Command::Bench(args) => bench(args),
     }
+}
+
+/// Loads the scenario (file or embedded default) with overrides, then the arm and the GP.
+fn prepare(args: &ScenarioArgs) -> Result<RunSetup, Failure> {
+    let loaded = match &args.scenario {
+        Some(path) => LoadedScenario::from_file(path, &args.set),
+        None => LoadedScenario::embedded_default(&args.set),
+    }
+    .map_err(bad_input)?;
+    RunSetup::prepare(loaded).map_err(bad_input)
+}
+
+fn parse_method(name: &str) -> Result<Method, Failure> {
+    name.parse::<Method>()
+        .map_err(|e| bad_input(anyhow!("--method: {e}")))
+}
+
+/// An output folder: created if missing; an existing non-empty one needs `--force`.
+fn output_dir(dir: &Path, force: bool) -> Result<(), Failure> {
+    if dir.exists() {
+        if !dir.is_dir() {
+            return Err(bad_input(anyhow!(
+                "{} exists and is not a folder",
+                dir.display()
+            )));
+        }
+        let non_empty = std::fs::read_dir(dir)
+            .map_err(|e| internal(anyhow!("{}: {e}", dir.display())))?
+            .next()
+            .is_some();
+        if non_empty && !force {
+            return Err(bad_input(anyhow!(
+                "{} exists and is not empty; pass --force to write into it",
+                dir.display()
+            )));
+        }
+    }
+    std::fs::create_dir_all(dir)
+        .with_context(|| format!("creating {}", dir.display()))
+        .map_err(internal)
+}
+
+/// The detector calibration a method needs: --calib, the scenario's file, or on the fly.
+fn calibration_for(
+    setup: &RunSetup,
+    methods: &[Method],
+    calib: Option<&PathBuf>,
+) -> Result<Option<Arc<Calibration>>, Failure> {
+    if !methods.iter().any(|m| m.needs_detector()) {
+        return Ok(None);
+    }
+    if let Some(path) = calib {
+        return calibrate::load_calibration(setup, path)
+            .map(|c| Some(Arc::new(c)))
+            .map_err(bad_input);
+    }
+    if let Some(rel) = &setup.scenario().detector.calibration {
+        let path = setup.loaded.resolve(rel);
+        return calibrate::load_calibration(setup, &path)
+            .map(|c| Some(Arc::new(c)))
+            .map_err(bad_input);
+    }
+    let runs = setup.scenario().detector.calibration_runs;
+    eprintln!("calibrating the detector on {runs} healthy runs ...");
+    let start = std::time::Instant::now();
+    let cal = calibrate::calibrate(setup, runs).map_err(bad_input)?;
+    eprintln!("calibrated in {:.1} s", start.elapsed().as_secs_f64());
+    Ok(Some(Arc::new(cal)))
+}
+
+fn describe_gp(setup: &RunSetup) -> String {
+    match &setup.gp_source {
+        scenario::GpSource::Trained {
+            points, seconds, ..
+        } => {
+            format!("trained on {points} points in {seconds:.2} s")
+        }
+        scenario::GpSource::Loaded(path) => format!("loaded from {}", path.display()),
+    }
+}
+
+fn run(args: RunArgs) -> Result<(), Failure> {
+    let mut setup = prepare(&args.scenario)?;
+    let method = match &args.method {
+        Some(m) => parse_method(m)?,
+        None => setup.scenario().precision.method,
+    };
+    let seed = args.seed.unwrap_or(setup.scenario().seed);
+    setup.loaded.scenario.precision.method = method;
+    setup.loaded.scenario.seed = seed;
+    let dir = args.out.clone().unwrap_or_else(|| {
+        PathBuf::from("runs").join(format!("{}-{}-{}", setup.scenario().name, method, seed))
+    });
+    // Everything that can be wrong with the input is checked before the folder is touched.
+    if let Some(calib) = &args.calib {
+        calibrate::load_calibration(&setup, calib).map_err(bad_input)?;
+    }
+    output_dir(&dir, args.force)?;
+    let calibration = calibration_for(&setup, &[method], args.calib.as_ref())?;
+    let layout = ChannelLayout::new(setup.model.joints.len());
+    let mut recorder = TrajectoryRecorder::new(layout);
+    let result = scenario::run(&setup, method, seed, calibration.as_deref(), &mut recorder)
+        .map_err(bad_input)?;
+    run_files::write_run(&dir, &setup, &result, &recorder, calibration.as_deref())
+        .map_err(internal)?;
+    let fmt_opt = |v: Option<f64>| v.map_or("n/a".to_string(), |x| format!("{x:.3e}"));
+    println!(
+        "scenario {} | method {} | seed {} | GP {}",
+        setup.scenario().name,
+        method,
+        seed,
+        describe_gp(&setup)
+    );
+    println!("outcome: {}", result.outcome.name());
+    if let scenario::Outcome::Diverged { tick, reason } = &result.outcome {
+        println!(
+            "  diverged at t = {:.3} s: {reason}",
+            *tick as f64 * setup.scenario().dt
+        );
+    }
+    println!(
+        "belief MSE per joint: {}",
+        result
+            .mse_per_joint
+            .iter()
+            .map(|v| format!("{v:.3e}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    println!(
+        "faulty-joint MSE: {} | healthy-joint MSE: {}",
+        fmt_opt(result.mse_faulty),
+        fmt_opt(result.mse_healthy)
+    );
+    println!(
+        "final error per joint (rad): {}",
+        result
+            .final_error_per_joint
+            .iter()
+            .map(|v| format!("{v:.4}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    match result.detected_at {
+        Some(t) => println!(
+            "detected at {t:.3} s ({}), isolated {}",
+            result.detection_kind,
+            result.isolated_channel.clone().unwrap_or_default()
+        ),
+        None => println!("no detection"),
+    }
+    println!(
+        "speed: {:.0} ticks/s ({:.1}x real time)",
+        result.ticks_per_second(),
+        result.ticks_per_second() * setup.scenario().dt
+    );
+    println!(
+        "wrote {}/: {}, {}, {}, plots {}, {}, {}, {}",
+        dir.display(),
+        run_files::TRAJECTORY,
+        run_files::SUMMARY,
+        run_files::RESOLVED,
+        run_files::PLOT_JOINTS,
+        run_files::PLOT_HEALTH,
+        run_files::PLOT_DETECTOR,
+        run_files::PLOT_FREE_ENERGY
+    );
+    Ok(())
+}
+
+fn table(args: TableArgs) -> Result<(), Failure> {
+    let setup = prepare(&args.scenario)?;
+    let methods: Vec<Method> = if args.methods.is_empty() {
+        Method::ALL.to_vec()
+    } else {
+        args.methods
+            .iter()
+            .map(|m| parse_method(m.trim()))
+            .collect::<Result<_, _>>()?
+    };
+    if args.seeds == 0 {
+        return Err(bad_input(anyhow!("--seeds must be >= 1")));
+    }
+    let first = setup.scenario().seed;
+    let seeds: Vec<u64> = (0..args.seeds as u64).map(|i| first + i).collect();
+    let dir = args
+        .out
+        .clone()
+        .unwrap_or_else(|| PathBuf::from("tables").join(&setup.scenario().name));
+    if let Some(calib) = &args.calib {
+        calibrate::load_calibration(&setup, calib).map_err(bad_input)?;
+    }
+    output_dir(&dir, args.force)?;
+    let start = std::time::Instant::now();
+    let calibration = calibration_for(&setup, &methods, args.calib.as_ref())?;
+    let bar = indicatif::ProgressBar::new((methods.len() * seeds.len()) as u64);
+    if !std::io::IsTerminal::is_terminal(&std::io::stderr()) {
+        bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+    }
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} runs, {elapsed} (eta {eta})")
+            .expect("valid template"),
+    );
+    let tick = || bar.inc(1);
+    let result = table::run_table(&setup, &methods, &seeds, calibration.as_deref(), &tick)
+        .map_err(bad_input)?;
+    bar.finish_and_clear();
+    table_files::write_table(&dir, &setup, &result).map_err(internal)?;
+    print!("{}", table_files::table_markdown(&setup, &result));
+    println!(
+        "
+{} runs ({} methods x {} seeds) in {:.1} s on {} threads; GP {}; wrote {}/table.csv, table.md, table.json, runs.csv",
+        methods.len() * seeds.len(),
+        methods.len(),
+        seeds.len(),
+        start.elapsed().as_secs_f64(),
+        rayon::current_num_threads(),
+        describe_gp(&setup),
+        dir.display()
+    );
+    Ok(())
+}
+
+fn calibrate_cmd(args: CalibrateArgs) -> Result<(), Failure> {
+    let setup = prepare(&args.scenario)?;
+    let runs = args
+        .runs
+        .unwrap_or(setup.scenario().detector.calibration_runs);
+    if runs < 2 {
+        return Err(bad_input(anyhow!("--runs must be >= 2")));
+    }
+    let start = std::time::Instant::now();
+    let cal = calibrate::calibrate(&setup, runs).map_err(bad_input)?;
+    report::write_atomic(&args.out, cal.to_json().as_bytes()).map_err(internal)?;
+    println!(
+        "calibrated {} on {runs} healthy runs ({} ticks) in {:.1} s; fingerprint {}; wrote {}",
+        setup.scenario().name,
+        cal.ticks,
+        start.elapsed().as_secs_f64(),
+        cal.fingerprint,
+        args.out.display()
+    );
+    // The false-alarm rate on fresh healthy seeds (disjoint from the calibration's).
+    let mut healthy = setup.clone();
+    healthy.faults.clear();
+    healthy.loaded.scenario.faults.clear();
+    let fresh: Vec<u64> = (0..20).map(|i| 1_000_000 + i).collect();
+    let check = table::run_table(
+        &healthy,
+        &[Method::Deterministic],
+        &fresh,
+        Some(&cal),
+        &|| {},
+    )
+    .map_err(bad_input)?;
+    let alarms = check.runs.iter().filter(|r| r.false_alarm).count();
+    println!(
+        "false alarms on {} fresh healthy seeds: {alarms} ({:.0} %)",
+        fresh.len(),
+        100.0 * alarms as f64 / fresh.len() as f64
+    );
+    Ok(())
+}
+
+fn train_gp(args: TrainGpArgs) -> Result<(), Failure> {
+    // Trains from scratch even if the scenario names a saved model.
+    let loaded = match &args.scenario.scenario {
+        Some(path) => LoadedScenario::from_file(path, &args.scenario.set),
+        None => LoadedScenario::embedded_default(&args.scenario.set),
+    }
+    .map_err(bad_input)?;
+    let mut loaded = loaded;
+    loaded.scenario.gp.model = None;
+    if let Some(p) = args.points {
+        loaded.scenario.gp.points = p;
+    }
+    let model = loaded.arm_model().map_err(bad_input)?;
+    loaded
+        .scenario
+        .validate(model.joints.len(), &loaded.path)
+        .map_err(bad_input)?;
+    let points = loaded.scenario.gp.points;
+    let start = std::time::Instant::now();
+    let (gp, fit) = scenario::train_gp(&loaded, &model, points).map_err(bad_input)?;
+    let seconds = start.elapsed().as_secs_f64();
+    let mut arm = Arm::new(
+        model,
+        ArmOptions {
+            ee_link: loaded.scenario.robot.ee_link.clone(),
+            ee_offset: loaded.scenario.robot.ee_offset,
+            gravity: loaded.scenario.robot.gravity,
+            solver_iterations: loaded.scenario.robot.solver_iterations,
+        },
+    )
+    .map_err(bad_input)?;
+    let camera = aift::sensors::Camera::new(loaded.scenario.camera.clone());
+    let held =
+        aift::gp::evaluate_held_out(&gp, &mut arm, &camera, 2000, loaded.scenario.gp.seed + 1);
+    report::write_atomic(&args.out, gp.to_json().as_bytes()).map_err(internal)?;
+    let h = &gp.hyperparameters;
+    println!(
+        "trained the camera GP of {} on {points} points in {seconds:.2} s ({} likelihood evaluations)",
+        loaded.scenario.name, fit.evaluations
+    );
+    println!(
+        "length scales (rad): {}",
+        h.length_scales
+            .iter()
+            .map(|l| format!("{l:.4}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    println!(
+        "signal std sf: {:.4} m, noise std sn: {:.5} m",
+        h.signal_std, h.noise_std
+    );
+    println!(
+        "log marginal likelihood: {:.3}",
+        fit.log_marginal_likelihood
+    );
+    println!(
+        "held-out error on {} configurations in the training box: RMS {:.2} mm, max {:.2} mm",
+        held.points,
+        held.rms * 1e3,
+        held.max * 1e3
+    );
+    println!("wrote {}", args.out.display());
+    Ok(())
+}
+
+fn bench(args: BenchArgs) -> Result<(), Failure> {
+    let setup = prepare(&args.scenario)?;
+    let figures = scenario::bench::bench(&setup, args.ticks).map_err(bad_input)?;
+    println!("scenario: {}", setup.scenario().name);
+    println!("joints: {}", setup.model.joints.len());
+    println!("gp_points: {}", setup.gp.n_points());
+    for f in figures {
+        println!("{}: {:.3}", f.name, f.value);
+    }
+    Ok(())
 }
 
 fn check_urdf(args: CheckUrdfArgs) -> Result<(), Failure> {
