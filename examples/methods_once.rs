@@ -13,10 +13,22 @@ fn main() {
     let loaded = LoadedScenario::from_file(std::path::Path::new(&path), &overrides).unwrap();
     let setup = RunSetup::prepare(loaded).unwrap();
     let t = std::time::Instant::now();
-    let cal = calibrate(&setup, 20).unwrap();
-    eprintln!("calibration {:.1} s", t.elapsed().as_secs_f64());
+    let cal = calibrate(&setup, 20);
+    eprintln!(
+        "calibration {:.1} s: {}",
+        t.elapsed().as_secs_f64(),
+        if cal.is_ok() {
+            "ok".to_string()
+        } else {
+            format!("{:?}", cal.as_ref().err())
+        }
+    );
+    let cal = cal.ok();
     for method in Method::ALL {
-        let r = run(&setup, method, seed, Some(&cal), &mut NoObserver).unwrap();
+        if method.needs_detector() && cal.is_none() {
+            continue;
+        }
+        let r = run(&setup, method, seed, cal.as_ref(), &mut NoObserver).unwrap();
         println!(
             "{:14} {:9} mse {:?} final {:?} det {:?} iso {:?} health {:?} min5 {:?} {:.0} t/s",
             method.name(),

@@ -149,6 +149,9 @@ pub struct PrecisionConfig {
     pub min_ratio: f64,
     /// Upper clamp of every learner, as a multiple of the nominal precision.
     pub max_ratio: f64,
+    /// Nominal precision per channel (enc.., tach.., cam_u, cam_v), overriding the physical
+    /// 1/sigma^2: e.g. all 1, the "tuning units" of the authors' code.
+    pub nominal: Option<Vec<f64>>,
 }
 
 impl PrecisionConfig {
@@ -171,6 +174,7 @@ impl Default for PrecisionConfig {
             window: 100,
             min_ratio: PrecisionBounds::default().min_ratio,
             max_ratio: PrecisionBounds::default().max_ratio,
+            nominal: None,
         }
     }
 }
@@ -374,6 +378,24 @@ impl Scenario {
                 "precision.max_ratio",
                 "must be finite and >= min_ratio".into(),
             ));
+        }
+        if let Some(nominal) = &p.nominal {
+            if nominal.len() != 2 * n_joints + 2 {
+                return Err(bad(
+                    "precision.nominal",
+                    format!(
+                        "has {} values; the arm has {} channels (enc1..enc{n_joints}, tach1..tach{n_joints}, cam_u, cam_v)",
+                        nominal.len(),
+                        2 * n_joints + 2
+                    ),
+                ));
+            }
+            if !nominal.iter().all(|w| w.is_finite() && *w > 0.0) {
+                return Err(bad(
+                    "precision.nominal",
+                    "values must be finite and > 0".into(),
+                ));
+            }
         }
         self.detector
             .config()

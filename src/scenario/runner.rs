@@ -273,7 +273,11 @@ pub fn run(
         dt,
         seed,
     );
-    let nominal = nominal_precisions(sensors.sigmas());
+    let nominal = sc
+        .precision
+        .nominal
+        .clone()
+        .unwrap_or_else(|| nominal_precisions(sensors.sigmas()));
     let mut controller = Controller::new(sc.controller.clone(), layout, setup.gp.clone(), dt);
     let mut learner = make_learner(setup, method, &nominal, layout);
     let mut detector = match (method.needs_detector(), calibration) {

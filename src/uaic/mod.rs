@@ -142,8 +142,6 @@ pub struct Controller {
     /// Belief x = [mu, mu'] and the previous tick's belief.
     x: DVector<f64>,
     x_prev: DVector<f64>,
-    /// The belief two ticks back (the gradient scheme's prior mean is A x_{k-2}).
-    x_prev2: DVector<f64>,
     pid: Pid,
     /// mu_u (the action belief) for a finite kappa_u.
     mu_u: Vec<f64>,
@@ -178,7 +176,6 @@ impl Controller {
             dt,
             x: DVector::zeros(2 * n),
             x_prev: DVector::zeros(2 * n),
-            x_prev2: DVector::zeros(2 * n),
             mu_u: vec![0.0; n],
             f_star: vec![0.0; n],
             initialised: false,
@@ -231,7 +228,6 @@ impl Controller {
             self.x[n + i] = readings.get(n + i).unwrap_or(0.0);
         }
         self.x_prev.copy_from(&self.x);
-        self.x_prev2.copy_from(&self.x);
         self.initialised = true;
     }
 
@@ -308,6 +304,61 @@ impl Controller {
         }
     }
 
+    /// The free energy at belief `x` = [mu, mu'] with the prior relative to the previous belief
+    /// `prev`, and its gradient dF/dx (the e_u term, zero when u = f*, left out). Channels
+    /// missing from `readings` or with precision 0 are left out. Constant terms (ln 2 pi) are
+    /// dropped.
+    pub fn free_energy(
+        &self,
+        x: &[f64],
+        prev: &[f64],
+        readings: &Readings,
+        precisions: &[f64],
+    ) -> (f64, Vec<f64>) {
+        let n = self.layout.n_joints;
+        let (mut g, mut jac) = ([0.0; 2], vec![0.0; 2 * n]);
+        self.gp.predict(&x[..n], &mut g, &mut jac);
+        let xv = DVector::from_column_slice(x);
+        let mut f = 0.0;
+        let mut grad = vec![0.0; 2 * n];
+        for c in 0..self.layout.len() {
+            let (Some(y), w) = (readings.get(c), precisions[c]) else {
+                continue;
+            };
+            if w <= 0.0 {
+                continue;
+            }
+            let e = y - self.predict_channel(c, &xv, &g);
+            f += 0.5 * (w * e * e - w.ln());
+            match self.layout.channel(c) {
+                Channel::Encoder(i) => grad[i] -= w * e,
+                Channel::Tachometer(i) => grad[n + i] -= w * e,
+                Channel::Camera(r) => {
+                    for a in 0..n {
+                        grad[a] -= w * e * jac[r * n + a];
+                    }
+                }
+            }
+        }
+        let mut ex = vec![0.0; 2 * n];
+        self.prior_residual(&xv, &DVector::from_column_slice(prev), &mut ex);
+        let (pm, pv) = (
+            self.config.prior_position_precision,
+            self.config.prior_velocity_precision,
+        );
+        for i in 0..n {
+            f +=
+                0.5 * (pm * ex[i] * ex[i] - pm.ln()) + 0.5 * (pv * ex[n + i] * ex[n + i] - pv.ln());
+            grad[i] += pm * ex[i];
+            grad[n + i] += pv * ex[n + i];
+            if self.config.prediction == Prediction::Coupled {
+                // d e_x,pos / d mu' = -dt.
+                grad[n + i] -= self.dt * pm * ex[i];
+            }
+        }
+        (f, grad)
+    }
+
     /// One control tick: update the belief from `readings` with channel precisions
     /// `precisions` (0 leaves a channel out), then compute the torques toward `target`.
     ///
@@ -335,88 +386,71 @@ impl Controller {
                 .map(|y| y - self.predict_channel(c, &self.x_hat, &g));
         }
 
-        let x_before = self.x.clone();
-        match self.config.update {
-            UpdateScheme::GaussNewton => {
-                // Quadratic model of F about x_hat (the prior residual vanishes there).
-                self.prior_hessian();
-                self.rhs.fill(0.0);
-                for c in 0..m {
-                    if let Some(r) = self.report.innovations[c]
-                        && precisions[c] > 0.0
-                    {
-                        self.accumulate(c, precisions[c], r);
-                    }
-                }
-                let Some(step) = self.solve_in_place() else {
-                    return self.refuse();
-                };
-                let eta = self.config.step;
-                let new = &self.x_hat + step * eta;
-                self.x_prev2.copy_from(&self.x_prev);
-                self.x_prev.copy_from(&self.x);
-                self.x = new;
-            }
+        // The Gauss-Newton Hessian H = sum w J'J + A' P_x A: the GN step's metric and, inverted,
+        // the Laplace posterior covariance behind the corrections c_i.
+        let update_point = match self.config.update {
+            UpdateScheme::GaussNewton => self.x_hat.clone(),
             UpdateScheme::Gradient => {
-                // Sensory residuals at the current belief x_{k-1}; prior mean A x_{k-2}.
                 let x_cur = self.x.clone();
                 self.gp
                     .predict(&x_cur.as_slice()[..n], &mut g, &mut self.jac);
-                self.prior_hessian();
-                self.rhs.fill(0.0);
-                for c in 0..m {
-                    if let Some(y) = readings.get(c)
-                        && precisions[c] > 0.0
-                    {
-                        let e = y - self.predict_channel(c, &x_cur, &g);
-                        self.accumulate(c, precisions[c], e);
-                    }
-                }
-                // -dF/dx = sum w J' e - (dE_x/dx)' P_x e_x.
-                let mut ex = vec![0.0; 2 * n];
-                self.prior_residual(&x_cur, &self.x_prev, &mut ex);
-                let pm = self.config.prior_position_precision;
-                let pv = self.config.prior_velocity_precision;
-                let mut neg_grad = self.rhs.clone();
-                for i in 0..n {
-                    let (ep, ev) = (pm * ex[i], pv * ex[n + i]);
-                    neg_grad[i] -= ep;
-                    neg_grad[n + i] -= ev;
-                    if self.config.prediction == Prediction::Coupled {
-                        neg_grad[n + i] += dt * ep;
-                    }
-                }
-                let kappa = self.config.kappa_mu;
-                let mut new = x_cur.clone();
-                for i in 0..n {
-                    new[i] += dt * x_cur[n + i];
-                }
-                new += neg_grad * (dt * kappa);
-                self.x_prev2.copy_from(&self.x_prev);
-                self.x_prev.copy_from(&x_cur);
-                self.x = new;
-                // The Hessian at x_cur, for the posterior-variance corrections.
-                if self.factor_hessian().is_none() {
-                    return self.refuse();
-                }
+                x_cur
+            }
+        };
+        self.prior_hessian();
+        self.rhs.fill(0.0);
+        for c in 0..m {
+            if let Some(y) = readings.get(c)
+                && precisions[c] > 0.0
+            {
+                let e = y - self.predict_channel(c, &update_point, &g);
+                self.accumulate(c, precisions[c], e);
             }
         }
-        if !self.x.iter().all(|v| v.is_finite()) {
-            self.x.copy_from(&x_before);
+        if self.factor_hessian().is_none() {
             return self.refuse();
         }
+        let new = match self.config.update {
+            // At x_hat the prior's gradient vanishes: -dF/dx = rhs, and x = x_hat + eta H^-1 rhs.
+            UpdateScheme::GaussNewton => {
+                &self.x_hat + (&self.covariance * &self.rhs) * self.config.step
+            }
+            // x_k = x_{k-1} + dt (D x_{k-1} - kappa_mu dF/dx(x_{k-1})), prior mean A x_{k-2}.
+            UpdateScheme::Gradient => {
+                let (_, grad) = self.free_energy(
+                    update_point.as_slice(),
+                    self.x_prev.as_slice(),
+                    readings,
+                    precisions,
+                );
+                let mut new = update_point.clone();
+                for i in 0..n {
+                    new[i] += dt * update_point[n + i];
+                }
+                for (v, gr) in new.iter_mut().zip(&grad) {
+                    *v -= dt * self.config.kappa_mu * gr;
+                }
+                new
+            }
+        };
+        if !new.iter().all(|v| v.is_finite()) {
+            return self.refuse();
+        }
+        self.x_prev.copy_from(&self.x);
+        self.x = new;
 
-        // Residuals after the update, the corrections c_i and F.
+        // Residuals after the update, the corrections c_i and F at the new belief.
         self.gp.predict_mean(&self.x.as_slice()[..n], &mut self.g);
         self.corrections();
-        let mut free_energy = 0.0;
+        let gg = self.g;
         for c in 0..m {
-            let gg = self.g;
-            let e = readings
+            self.report.residuals[c] = readings
                 .get(c)
                 .map(|y| y - self.predict_channel(c, &self.x, &gg));
-            self.report.residuals[c] = e;
-            if let Some(e) = e
+        }
+        let mut free_energy = 0.0;
+        for c in 0..m {
+            if let Some(e) = self.report.residuals[c]
                 && precisions[c] > 0.0
             {
                 free_energy += 0.5 * (precisions[c] * e * e - precisions[c].ln());
@@ -438,11 +472,12 @@ impl Controller {
             None => self.report.torques.copy_from_slice(&self.f_star),
             Some(kappa_u) => {
                 let pu = self.config.control_precision;
-                // Implicit in mu_u: stable for any kappa_u.
+                // mu_u <- mu_u - dt kappa_u P_u (mu_u - f*), taken implicitly: stable for any
+                // kappa_u.
                 let a = dt * kappa_u * pu;
                 for i in 0..n {
-                    let e_u = self.mu_u[i] - self.f_star[i];
                     self.mu_u[i] = (self.mu_u[i] + a * self.f_star[i]) / (1.0 + a);
+                    let e_u = self.mu_u[i] - self.f_star[i];
                     free_energy += 0.5 * (pu * e_u * e_u - pu.ln());
                 }
                 self.report.torques.copy_from_slice(&self.mu_u);
@@ -451,12 +486,6 @@ impl Controller {
         self.report.free_energy = free_energy;
         self.report.finite = free_energy.is_finite();
         &self.report
-    }
-
-    /// Factorises H (SPD), stores H^-1 and returns H^-1 rhs.
-    fn solve_in_place(&mut self) -> Option<DVector<f64>> {
-        self.factor_hessian()?;
-        Some(&self.covariance * &self.rhs)
     }
 
     /// Factorises H and stores H^-1 as the posterior covariance.

@@ -1,0 +1,199 @@
+//! The studies behind the README's findings, each a Monte Carlo over a few seeds:
+//!
+//! - `update-scheme`: Gauss-Newton against the paper's gradient descent, with physical
+//!   precisions and in the authors' "tuning units" (every precision 1);
+//! - `prior-scale`: who gets blamed for a frozen encoder as the state prior P_mu varies;
+//! - `prediction`: the paper's against the coupled prediction, encoder and tachometer freezes;
+//! - `fault-sites`: every method on tachometer-1 freeze, camera freeze and camera bias.
+//!
+//! `cargo run --release --example studies -- STUDY [SEEDS]` (every study when none is named).
+
+use aift::scenario::calibrate::calibrate;
+use aift::scenario::table::run_table;
+use aift::scenario::{LoadedScenario, Method, RunSetup};
+
+fn setup(file: &str, overrides: &[&str]) -> RunSetup {
+    let root = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let overrides: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
+    let loaded = LoadedScenario::from_file(&root.join(file), &overrides).expect("scenario");
+    RunSetup::prepare(loaded).expect("setup")
+}
+
+fn sci(v: Option<f64>) -> String {
+    v.map_or("-".into(), |x| format!("{x:.2e}"))
+}
+
+/// Runs `methods` over `seeds` and prints one markdown row per method, prefixed by `label`.
+fn rows(label: &str, setup: &RunSetup, methods: &[Method], seeds: &[u64]) {
+    let calibration = methods
+        .iter()
+        .any(|m| m.needs_detector())
+        .then(|| calibrate(setup, 20));
+    let calibration = match calibration {
+        Some(Ok(c)) => Some(c),
+        Some(Err(e)) => {
+            println!("| {label} | (no calibration: {e}) | | | | | |");
+            None
+        }
+        None => None,
+    };
+    let methods: Vec<Method> = methods
+        .iter()
+        .copied()
+        .filter(|m| !m.needs_detector() || calibration.is_some())
+        .collect();
+    let table = run_table(setup, &methods, seeds, calibration.as_ref(), &|| {}).expect("runs");
+    let layout = aift::sensors::ChannelLayout::new(setup.model.joints.len());
+    for row in &table.rows {
+        let runs: Vec<_> = table
+            .runs
+            .iter()
+            .filter(|r| r.method == row.method)
+            .collect();
+        // Mean final health per channel, to see who got blamed.
+        let health: Vec<String> = (0..layout.len())
+            .map(|c| {
+                let mean = runs.iter().map(|r| r.final_health[c]).sum::<f64>() / runs.len() as f64;
+                format!("{}={:.2}", layout.channel(c).name(), mean)
+            })
+            .collect();
+        let all = runs
+            .iter()
+            .map(|r| r.mse_per_joint.iter().copied().fold(0.0, f64::max))
+            .sum::<f64>()
+            / runs.len() as f64;
+        println!(
+            "| {label} | {} | {} | {} | {} | {:.4} | {}/{} | {} |",
+            row.method.name(),
+            sci(row.mse_faulty_mean),
+            sci(row.mse_healthy_mean),
+            sci(Some(all)),
+            row.max_final_error_mean,
+            row.diverged,
+            row.seeds,
+            health.join(" ")
+        );
+    }
+}
+
+fn header() {
+    println!(
+        "| case | method | faulty MSE | healthy MSE | worst-joint MSE | max final error (rad) | diverged | mean final health |"
+    );
+    println!("|---|---|---|---|---|---|---|---|");
+}
+
+const ENC: &str = "assets/scenarios/paper_encoder_freeze.toml";
+const HEALTHY: &str = "assets/scenarios/paper_healthy.toml";
+const TACH: &str = "assets/scenarios/paper_tachometer_freeze.toml";
+const CAM_FREEZE: &str = "assets/scenarios/paper_camera_freeze.toml";
+const CAM_BIAS: &str = "assets/scenarios/paper_camera_bias.toml";
+
+fn update_scheme(seeds: &[u64]) {
+    println!("\n### update scheme (encoder freeze at 8 s)\n");
+    header();
+    let m = [Method::NoFt, Method::PlAlways, Method::Oracle];
+    rows(
+        "Gauss-Newton, physical precisions",
+        &setup(ENC, &[]),
+        &m,
+        seeds,
+    );
+    for kappa in ["200.0", "1e-5", "1e-6"] {
+        let k = format!("controller.kappa_mu={kappa}");
+        rows(
+            &format!("gradient kappa_mu={kappa}, physical precisions"),
+            &setup(ENC, &["controller.update=\"gradient\"", &k]),
+            &m,
+            seeds,
+        );
+    }
+    let unit = [
+        "controller.update=\"gradient\"",
+        "controller.kappa_mu=200.0",
+        "controller.prediction=\"paper\"",
+        "controller.prior_position_precision=1.0",
+        "controller.prior_velocity_precision=1.0",
+        "precision.nominal=[1.0, 1.0, 1.0, 1.0, 1.0, 1.0]",
+        "precision.max_ratio=1e6",
+    ];
+    rows(
+        "authors' units: every precision 1, gradient kappa_mu=200",
+        &setup(ENC, &unit),
+        &m,
+        seeds,
+    );
+    rows(
+        "authors' units, healthy run",
+        &setup(HEALTHY, &unit),
+        &[Method::NoFt],
+        seeds,
+    );
+}
+
+fn prior_scale(seeds: &[u64]) {
+    println!("\n### state prior scale (encoder freeze at 8 s)\n");
+    header();
+    for pm in ["1e6", "1e7", "1e8", "1e9"] {
+        let o = format!("controller.prior_position_precision={pm}");
+        rows(
+            &format!("P_mu = {pm}"),
+            &setup(ENC, &[&o]),
+            &[
+                Method::PlAlways,
+                Method::Bayes,
+                Method::Window,
+                Method::Deterministic,
+            ],
+            seeds,
+        );
+    }
+}
+
+fn prediction(seeds: &[u64]) {
+    println!("\n### prediction: paper against coupled\n");
+    header();
+    for (case, file) in [("encoder freeze", ENC), ("tachometer-1 freeze", TACH)] {
+        for p in ["paper", "coupled"] {
+            let o = format!("controller.prediction=\"{p}\"");
+            rows(
+                &format!("{case}, {p}"),
+                &setup(file, &[&o]),
+                &Method::ALL,
+                seeds,
+            );
+        }
+    }
+}
+
+fn fault_sites(seeds: &[u64]) {
+    println!("\n### other fault sites (coupled prediction, defaults)\n");
+    header();
+    for (case, file) in [
+        ("tachometer-1 freeze", TACH),
+        ("camera freeze", CAM_FREEZE),
+        ("camera bias +0.04 m", CAM_BIAS),
+    ] {
+        rows(case, &setup(file, &[]), &Method::ALL, seeds);
+    }
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let study = args.first().map(String::as_str).unwrap_or("all");
+    let n: u64 = args.get(1).and_then(|s| s.parse().ok()).unwrap_or(4);
+    let seeds: Vec<u64> = (1..=n).collect();
+    println!("seeds 1..={n}");
+    match study {
+        "update-scheme" => update_scheme(&seeds),
+        "prior-scale" => prior_scale(&seeds),
+        "prediction" => prediction(&seeds),
+        "fault-sites" => fault_sites(&seeds),
+        _ => {
+            update_scheme(&seeds);
+            prior_scale(&seeds);
+            prediction(&seeds);
+            fault_sites(&seeds);
+        }
+    }
+}
