@@ -4,9 +4,6 @@
 //! [`plant`] (URDF, physics) -> sensors and faults -> generative model (GP) -> u-AIC estimation and
 //! control -> precision learners and detector -> scenario runner -> reports.
 
-// Numerical kernels index several arrays in lockstep; index loops read best there.
-#![allow(clippy::needless_range_loop)]
-
 pub mod gp;
 pub mod plant;
 pub mod precision;

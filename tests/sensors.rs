@@ -1,4 +1,3 @@
-#![allow(clippy::needless_range_loop)] // tick-indexed series read best with indices
 //! Sensors: noise statistics and stream independence, the camera (distortion, poses, occlusion),
 //! and every fault kind in time.
 

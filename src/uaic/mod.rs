@@ -66,6 +66,11 @@ pub struct ControllerConfig {
     pub prior_position_precision: f64,
     /// Precision of the velocity prior P_mu' (s^2/rad^2).
     pub prior_velocity_precision: f64,
+    /// Ticks over which the prior's precisions ramp up from 1/K to 1 times their value, as a
+    /// Kalman filter's would from an initial covariance equal to one reading's: the belief
+    /// starts at the first (noisy) readings, and a full-strength prior would hold that noise
+    /// for about P_mu / encoder precision ticks. 0 disables the ramp.
+    pub prior_warmup_ticks: u64,
     /// Finite action gain kappa_u (1/s); absent: u = f* (the authors' kappa_u -> infinity).
     pub kappa_u: Option<f64>,
     /// Control precision P_u, used with a finite kappa_u.
@@ -82,6 +87,7 @@ impl Default for ControllerConfig {
             prediction: Prediction::Coupled,
             prior_position_precision: 1e8,
             prior_velocity_precision: 1e4,
+            prior_warmup_ticks: 100,
             kappa_u: None,
             control_precision: 1.0,
             gains: PidGains::paper(),
@@ -147,6 +153,8 @@ pub struct Controller {
     mu_u: Vec<f64>,
     f_star: Vec<f64>,
     initialised: bool,
+    /// Belief updates since the initialisation (drives the prior's warm-up).
+    updates: u64,
     // Scratch, reused every tick.
     hessian: DMatrix<f64>,
     /// H^-1, the Laplace posterior covariance of the last update.
@@ -179,6 +187,7 @@ impl Controller {
             mu_u: vec![0.0; n],
             f_star: vec![0.0; n],
             initialised: false,
+            updates: 0,
             hessian: DMatrix::zeros(2 * n, 2 * n),
             covariance: DMatrix::zeros(2 * n, 2 * n),
             rhs: DVector::zeros(2 * n),
@@ -229,6 +238,21 @@ impl Controller {
         }
         self.x_prev.copy_from(&self.x);
         self.initialised = true;
+        self.updates = 0;
+    }
+
+    /// The prior precisions (P_mu, P_mu') in force, with the warm-up ramp applied.
+    pub fn prior_precisions(&self) -> (f64, f64) {
+        let k = self.config.prior_warmup_ticks;
+        let scale = if k == 0 {
+            1.0
+        } else {
+            ((self.updates + 1) as f64 / k as f64).min(1.0)
+        };
+        (
+            self.config.prior_position_precision * scale,
+            self.config.prior_velocity_precision * scale,
+        )
     }
 
     /// The sensory prediction of channel `c` at a state, given the GP output `g` at its mu.
@@ -267,10 +291,7 @@ impl Controller {
     /// Fills the prior's Hessian (A' P_x A) into `self.hessian`.
     fn prior_hessian(&mut self) {
         let n = self.layout.n_joints;
-        let (pm, pv) = (
-            self.config.prior_position_precision,
-            self.config.prior_velocity_precision,
-        );
+        let (pm, pv) = self.prior_precisions();
         self.hessian.fill(0.0);
         for i in 0..n {
             match self.config.prediction {
@@ -342,10 +363,7 @@ impl Controller {
         }
         let mut ex = vec![0.0; 2 * n];
         self.prior_residual(&xv, &DVector::from_column_slice(prev), &mut ex);
-        let (pm, pv) = (
-            self.config.prior_position_precision,
-            self.config.prior_velocity_precision,
-        );
+        let (pm, pv) = self.prior_precisions();
         for i in 0..n {
             f +=
                 0.5 * (pm * ex[i] * ex[i] - pm.ln()) + 0.5 * (pv * ex[n + i] * ex[n + i] - pv.ln());
@@ -458,8 +476,7 @@ impl Controller {
         }
         let mut ex = vec![0.0; 2 * n];
         self.prior_residual(&self.x, &self.x_prev, &mut ex);
-        let pm = self.config.prior_position_precision;
-        let pv = self.config.prior_velocity_precision;
+        let (pm, pv) = self.prior_precisions();
         for i in 0..n {
             free_energy += 0.5 * (pm * ex[i] * ex[i] - pm.ln());
             free_energy += 0.5 * (pv * ex[n + i] * ex[n + i] - pv.ln());
@@ -485,6 +502,7 @@ impl Controller {
         }
         self.report.free_energy = free_energy;
         self.report.finite = free_energy.is_finite();
+        self.updates += 1;
         &self.report
     }
 

@@ -129,3 +129,53 @@ pub fn solve2(m: [[f64; 2]; 2], f: [f64; 2]) -> [f64; 2] {
         (m[0][0] * f[1] - m[1][0] * f[0]) / det,
     ]
 }
+
+/// A prepared scenario from `assets/scenarios/`, with overrides.
+pub fn setup(file: &str, overrides: &[&str]) -> aift::scenario::RunSetup {
+    let overrides: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
+    let loaded = aift::scenario::LoadedScenario::from_file(
+        &repo(&format!("assets/scenarios/{file}")),
+        &overrides,
+    )
+    .expect("bundled scenario loads");
+    aift::scenario::RunSetup::prepare(loaded).expect("bundled scenario prepares")
+}
+
+/// Runs one method and seed, recording the trajectory.
+pub fn run_recorded(
+    setup: &aift::scenario::RunSetup,
+    method: aift::scenario::Method,
+    seed: u64,
+    calibration: Option<&aift::precision::Calibration>,
+) -> (
+    aift::scenario::RunResult,
+    aift::scenario::TrajectoryRecorder,
+) {
+    let layout = aift::sensors::ChannelLayout::new(setup.model.joints.len());
+    let mut rec = aift::scenario::TrajectoryRecorder::new(layout);
+    let result = aift::scenario::run(setup, method, seed, calibration, &mut rec).expect("run");
+    (result, rec)
+}
+
+/// The value of a recorded column at time t.
+pub fn at(rec: &aift::scenario::TrajectoryRecorder, column: &str, t: f64) -> f64 {
+    let c = rec.column(column).expect("column");
+    let dt = rec.rows[1][0] - rec.rows[0][0];
+    let k = ((t / dt).round() as usize).min(rec.rows.len() - 1);
+    rec.rows[k][c]
+}
+
+/// Minimum of a recorded column over [from, to).
+pub fn min_between(
+    rec: &aift::scenario::TrajectoryRecorder,
+    column: &str,
+    from: f64,
+    to: f64,
+) -> f64 {
+    let c = rec.column(column).expect("column");
+    rec.rows
+        .iter()
+        .filter(|r| r[0] >= from - 1e-9 && r[0] < to - 1e-9)
+        .map(|r| r[c])
+        .fold(f64::INFINITY, f64::min)
+}

@@ -1,0 +1,150 @@
+//! The u-AIC on its own: F's gradient against finite differences, missing and zero-precision
+//! channels left out, the belief update against its closed form.
+
+mod common;
+
+use std::sync::Arc;
+
+use aift::gp::{FitOptions, GpModel, derive_box, sample_training_set};
+use aift::plant::{Arm, ArmOptions};
+use aift::sensors::{Camera, CameraConfig, ChannelLayout, Readings};
+use aift::uaic::{Controller, ControllerConfig, Prediction, UpdateScheme};
+use common::repo;
+
+fn gp() -> Arc<GpModel> {
+    let mut arm = Arm::from_urdf(&repo("urdf/planar_2dof.urdf"), ArmOptions::default()).unwrap();
+    let camera = Camera::new(CameraConfig::default());
+    let bounds = derive_box(&[vec![-1.57, 0.0], vec![-0.2, 0.5]], 0.3);
+    let (gp, _) = sample_training_set(&mut arm, &camera, &bounds, 80, 3)
+        .fit(&FitOptions::default())
+        .unwrap();
+    Arc::new(gp)
+}
+
+fn readings() -> Readings {
+    Readings {
+        values: vec![
+            Some(-0.61),
+            Some(0.22),
+            Some(0.05),
+            Some(-0.02),
+            Some(1.62),
+            Some(-0.35),
+        ],
+    }
+}
+
+const PRECISIONS: [f64; 6] = [1e6, 1e6, 1e6, 1e6, 1e4, 1e4];
+
+#[test]
+fn free_energy_gradient_equals_finite_differences() {
+    let gp = gp();
+    for prediction in [Prediction::Paper, Prediction::Coupled] {
+        let config = ControllerConfig {
+            prediction,
+            prior_warmup_ticks: 0,
+            ..ControllerConfig::default()
+        };
+        let c = Controller::new(config, ChannelLayout::new(2), gp.clone(), 1e-3);
+        let x = [-0.6, 0.21, 0.04, -0.03];
+        let prev = [-0.6001, 0.2102, 0.041, -0.029];
+        let r = readings();
+        let (_, grad) = c.free_energy(&x, &prev, &r, &PRECISIONS);
+        for i in 0..4 {
+            // Step sizes suited to each coordinate's curvature (P_mu = 1e8 on positions).
+            let h = 1e-7;
+            let (mut xp, mut xm) = (x, x);
+            xp[i] += h;
+            xm[i] -= h;
+            let fd = (c.free_energy(&xp, &prev, &r, &PRECISIONS).0
+                - c.free_energy(&xm, &prev, &r, &PRECISIONS).0)
+                / (2.0 * h);
+            let rel = (grad[i] - fd).abs() / fd.abs().max(1.0);
+            assert!(
+                rel < 1e-5,
+                "{prediction:?} x[{i}]: analytic {} fd {fd}",
+                grad[i]
+            );
+        }
+    }
+}
+
+#[test]
+fn missing_and_zero_precision_channels_are_left_out_of_f() {
+    let c = Controller::new(
+        ControllerConfig::default(),
+        ChannelLayout::new(2),
+        gp(),
+        1e-3,
+    );
+    let x = [-0.6, 0.21, 0.04, -0.03];
+    let prev = x;
+    let full = readings();
+    let (f_full, _) = c.free_energy(&x, &prev, &full, &PRECISIONS);
+    let mut missing = full.clone();
+    missing.values[0] = None;
+    let (f_missing, g_missing) = c.free_energy(&x, &prev, &missing, &PRECISIONS);
+    let mut zero = PRECISIONS;
+    zero[0] = 0.0;
+    let (f_zero, g_zero) = c.free_energy(&x, &prev, &full, &zero);
+    // Encoder 1's term is 1/2 (w e^2 - ln w) with e = -0.61 - (-0.6).
+    let e: f64 = -0.61 + 0.6;
+    let term = 0.5 * (1e6 * e * e - 1e6f64.ln());
+    assert!((f_full - f_missing - term).abs() < 1e-6 * f_full.abs().max(1.0));
+    assert_eq!(f_missing, f_zero);
+    assert_eq!(g_missing, g_zero);
+    assert!(f_zero.is_finite());
+}
+
+#[test]
+fn controller_runs_on_readings_with_missing_channels() {
+    let mut c = Controller::new(
+        ControllerConfig::default(),
+        ChannelLayout::new(2),
+        gp(),
+        1e-3,
+    );
+    let mut r = readings();
+    c.step(&r, &[-0.6, 0.2], &PRECISIONS);
+    // Camera and encoder 1 gone for a while: the belief stays finite and keeps integrating.
+    r.values[0] = None;
+    r.values[4] = None;
+    r.values[5] = None;
+    for _ in 0..100 {
+        let report = c.step(&r, &[-0.6, 0.2], &PRECISIONS);
+        assert!(report.finite && report.free_energy.is_finite());
+        assert!(report.torques.iter().all(|u| u.is_finite()));
+        assert_eq!(report.residuals[0], None);
+        assert_eq!(report.innovations[4], None);
+    }
+    assert!(c.mu().iter().chain(c.mu_p()).all(|v| v.is_finite()));
+}
+
+#[test]
+fn gauss_newton_step_lands_on_the_quadratic_models_minimum() {
+    // Encoders and tachometers only (camera weight 0): F is quadratic in x, so one GN step from
+    // the prediction must zero the gradient.
+    let mut c = Controller::new(
+        ControllerConfig {
+            update: UpdateScheme::GaussNewton,
+            prior_warmup_ticks: 0,
+            ..ControllerConfig::default()
+        },
+        ChannelLayout::new(2),
+        gp(),
+        1e-3,
+    );
+    let precisions = [1e6, 1e6, 1e6, 1e6, 0.0, 0.0];
+    let r0 = readings();
+    c.step(&r0, &[0.0, 0.0], &precisions);
+    let prev: Vec<f64> = c.mu().iter().chain(c.mu_p()).copied().collect();
+    let mut r1 = r0.clone();
+    r1.values[0] = Some(-0.605);
+    r1.values[2] = Some(0.07);
+    c.step(&r1, &[0.0, 0.0], &precisions);
+    let x: Vec<f64> = c.mu().iter().chain(c.mu_p()).copied().collect();
+    let (_, grad) = c.free_energy(&x, &prev, &r1, &precisions);
+    for g in grad {
+        assert!(g.abs() < 1e-4, "gradient {g} after the GN step");
+    }
+}
