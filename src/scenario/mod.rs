@@ -160,6 +160,10 @@ pub fn parse_scenario(
         path: path.to_path_buf(),
         message,
     };
+    if overrides.is_empty() {
+        // Straight from the text: errors carry the line and column.
+        return toml::from_str(text).map_err(|e: toml::de::Error| parse_error(e.to_string()));
+    }
     let mut table: toml::Table = toml::from_str(text).map_err(|e| parse_error(e.to_string()))?;
     for item in overrides {
         apply_override(&mut table, item)?;

@@ -1,5 +1,5 @@
-//! Every method once on a scenario (development aid):
-//! `cargo run --release --example methods_once -- [SCENARIO] [SEED] [KEY=VALUE ...]`
+//! Every method once on a scenario, each against the oracle (20-run calibration for speed):
+//! `cargo run --release --example compare_methods -- [SCENARIO] [SEED] [KEY=VALUE ...]`
 use aift::scenario::{LoadedScenario, Method, NoObserver, RunSetup, calibrate::calibrate, run};
 
 fn main() {

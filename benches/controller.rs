@@ -1,0 +1,70 @@
+//! One u-AIC tick (belief update with the GP's mean and Jacobian, corrections, F, f*) on the
+//! paper arm's 200-point camera GP, and one precision-learner update.
+
+use std::sync::Arc;
+
+use aift::gp::{FitOptions, derive_box, sample_training_set};
+use aift::plant::{Arm, ArmOptions};
+use aift::precision::{Detection, Gradient, LearnerInput, PrecisionBounds, PrecisionLearner};
+use aift::sensors::{Camera, CameraConfig, ChannelLayout, Readings};
+use aift::uaic::{Controller, ControllerConfig};
+use criterion::{Criterion, criterion_group, criterion_main};
+
+fn controller_tick(c: &mut Criterion) {
+    let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("urdf/planar_2dof.urdf");
+    let mut arm = Arm::from_urdf(&path, ArmOptions::default()).expect("paper arm");
+    let camera = Camera::new(CameraConfig::default());
+    let bounds = derive_box(
+        &[
+            vec![-std::f64::consts::FRAC_PI_2, 0.0],
+            vec![-0.2, 0.5],
+            vec![-0.6, 0.2],
+        ],
+        0.3,
+    );
+    let (gp, _) = sample_training_set(&mut arm, &camera, &bounds, 200, 1)
+        .fit(&FitOptions::default())
+        .expect("fit");
+    let layout = ChannelLayout::new(2);
+    let mut controller = Controller::new(ControllerConfig::default(), layout, Arc::new(gp), 1e-3);
+    let readings = Readings {
+        values: vec![
+            Some(-0.6),
+            Some(0.2),
+            Some(0.01),
+            Some(-0.01),
+            Some(1.53),
+            Some(-0.4),
+        ],
+    };
+    let precisions = [1e6, 1e6, 1e6, 1e6, 1e4, 1e4];
+    c.bench_function("uaic_tick_2dof_gp200", |b| {
+        b.iter(|| {
+            controller.step(std::hint::black_box(&readings), &[-0.6, 0.2], &precisions);
+        })
+    });
+    let mut learner = Gradient::new(&precisions, 10.0, true, false, PrecisionBounds::default());
+    let residuals = [
+        Some(1e-3),
+        Some(-1e-3),
+        Some(2e-4),
+        Some(0.0),
+        Some(1e-2),
+        Some(-5e-3),
+    ];
+    let detection = Detection::default();
+    c.bench_function("gradient_learner_update_6_channels", |b| {
+        b.iter(|| {
+            learner.update(&LearnerInput {
+                tick: 0,
+                dt: 1e-3,
+                residuals: std::hint::black_box(&residuals),
+                corrections: &[0.0; 6],
+                detection: &detection,
+            })
+        })
+    });
+}
+
+criterion_group!(benches, controller_tick);
+criterion_main!(benches);
