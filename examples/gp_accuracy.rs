@@ -30,7 +30,8 @@ fn main() {
             ],
         ),
     ];
-    println!("arm | points | RMS (mm) | max (mm) | fit (s) | predict (us)");
+    println!("| joints | points | held-out RMS (mm) | held-out max (mm) | fit (s) | predict mean + Jacobian (us) |");
+    println!("|---|---|---|---|---|---|");
     for (file, points) in cases {
         let mut arm = Arm::from_urdf(&root.join(file), ArmOptions::default()).unwrap();
         let camera = Camera::new(CameraConfig::default());
@@ -54,7 +55,7 @@ fn main() {
             }
             let us = t.elapsed().as_secs_f64() * 1e6 / reps as f64;
             println!(
-                "{} | {count} | {:.2} | {:.2} | {fit_s:.2} | {us:.2}",
+                "| {} | {count} | {:.2} | {:.2} | {fit_s:.2} | {us:.2} |",
                 arm.n_joints(),
                 err.rms * 1e3,
                 err.max * 1e3

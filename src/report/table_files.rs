@@ -141,7 +141,11 @@ pub fn table_markdown(setup: &RunSetup, table: &Table) -> String {
             sci(r.mse_healthy_mean),
             sci(r.mse_healthy_std),
             sci(paper.map(|p| p.1)),
-            r.ratio_to_oracle.map_or("-".into(), |x| format!("{x:.2}")),
+            r.ratio_to_oracle.map_or("-".into(), |x| if x < 1000.0 {
+                format!("{x:.2}")
+            } else {
+                format!("{x:.1e}")
+            }),
             r.max_final_error_mean,
             r.detection_delay_mean
                 .map_or("-".into(), |x| format!("{x:.3}")),
