@@ -30,7 +30,9 @@ fn main() {
             ],
         ),
     ];
-    println!("| joints | points | held-out RMS (mm) | held-out max (mm) | fit (s) | predict mean + Jacobian (us) |");
+    println!(
+        "| joints | points | held-out RMS (mm) | held-out max (mm) | fit (s) | predict mean + Jacobian (us) |"
+    );
     println!("|---|---|---|---|---|---|");
     for (file, points) in cases {
         let mut arm = Arm::from_urdf(&root.join(file), ArmOptions::default()).unwrap();

@@ -70,6 +70,18 @@ pub struct RobotConfig {
     pub solver_iterations: usize,
 }
 
+impl RobotConfig {
+    /// The simulated arm's options.
+    pub fn arm_options(&self) -> crate::plant::ArmOptions {
+        crate::plant::ArmOptions {
+            ee_link: self.ee_link.clone(),
+            ee_offset: self.ee_offset,
+            gravity: self.gravity,
+            solver_iterations: self.solver_iterations,
+        }
+    }
+}
+
 fn default_ee() -> String {
     "ee".into()
 }

@@ -333,13 +333,7 @@ impl RunSetup {
 
     /// Arm options from the scenario.
     pub fn arm_options(&self) -> ArmOptions {
-        let r = &self.scenario().robot;
-        ArmOptions {
-            ee_link: r.ee_link.clone(),
-            ee_offset: r.ee_offset,
-            gravity: r.gravity,
-            solver_iterations: r.solver_iterations,
-        }
+        self.scenario().robot.arm_options()
     }
 }
 
@@ -362,16 +356,7 @@ pub fn train_gp(
     points: usize,
 ) -> Result<(GpModel, gp::FitReport), ScenarioError> {
     let sc = &loaded.scenario;
-    let r = &sc.robot;
-    let mut arm = plant::Arm::new(
-        model.clone(),
-        ArmOptions {
-            ee_link: r.ee_link.clone(),
-            ee_offset: r.ee_offset,
-            gravity: r.gravity,
-            solver_iterations: r.solver_iterations,
-        },
-    )?;
+    let mut arm = plant::Arm::new(model.clone(), sc.robot.arm_options())?;
     let camera = Camera::new(sc.camera.clone());
     let bounds = training_box(sc);
     let set = gp::sample_training_set(&mut arm, &camera, &bounds, points, sc.gp.seed);

@@ -53,14 +53,18 @@ pub fn dispatch(cli: Cli) -> Result<(), Failure> {
     }
 }
 
-/// Loads the scenario (file or embedded default) with overrides, then the arm and the GP.
-fn prepare(args: &ScenarioArgs) -> Result<RunSetup, Failure> {
-    let loaded = match &args.scenario {
+/// Loads the scenario (file or embedded default) with overrides.
+fn load(args: &ScenarioArgs) -> Result<LoadedScenario, Failure> {
+    match &args.scenario {
         Some(path) => LoadedScenario::from_file(path, &args.set),
         None => LoadedScenario::embedded_default(&args.set),
     }
-    .map_err(bad_input)?;
-    RunSetup::prepare(loaded).map_err(bad_input)
+    .map_err(bad_input)
+}
+
+/// Loads the scenario, then the arm and the GP.
+fn prepare(args: &ScenarioArgs) -> Result<RunSetup, Failure> {
+    RunSetup::prepare(load(args)?).map_err(bad_input)
 }
 
 fn parse_method(name: &str) -> Result<Method, Failure> {
@@ -317,12 +321,7 @@ fn calibrate_cmd(args: CalibrateArgs) -> Result<(), Failure> {
 
 fn train_gp(args: TrainGpArgs) -> Result<(), Failure> {
     // Trains from scratch even if the scenario names a saved model.
-    let loaded = match &args.scenario.scenario {
-        Some(path) => LoadedScenario::from_file(path, &args.scenario.set),
-        None => LoadedScenario::embedded_default(&args.scenario.set),
-    }
-    .map_err(bad_input)?;
-    let mut loaded = loaded;
+    let mut loaded = load(&args.scenario)?;
     loaded.scenario.gp.model = None;
     if let Some(p) = args.points {
         loaded.scenario.gp.points = p;
@@ -336,16 +335,7 @@ fn train_gp(args: TrainGpArgs) -> Result<(), Failure> {
     let start = std::time::Instant::now();
     let (gp, fit) = scenario::train_gp(&loaded, &model, points).map_err(bad_input)?;
     let seconds = start.elapsed().as_secs_f64();
-    let mut arm = Arm::new(
-        model,
-        ArmOptions {
-            ee_link: loaded.scenario.robot.ee_link.clone(),
-            ee_offset: loaded.scenario.robot.ee_offset,
-            gravity: loaded.scenario.robot.gravity,
-            solver_iterations: loaded.scenario.robot.solver_iterations,
-        },
-    )
-    .map_err(bad_input)?;
+    let mut arm = Arm::new(model, loaded.scenario.robot.arm_options()).map_err(bad_input)?;
     let camera = aift::sensors::Camera::new(loaded.scenario.camera.clone());
     let held =
         aift::gp::evaluate_held_out(&gp, &mut arm, &camera, 2000, loaded.scenario.gp.seed + 1);
