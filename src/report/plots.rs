@@ -281,10 +281,16 @@ pub fn detector(
         .filter(|v| v.is_finite())
         .fold(10.0f64, |a, b| a.max(*b))
         * 2.0;
+    let ran = series.iter().any(|s| s.1.iter().any(|v| v.is_finite()));
+    let title = if ran {
+        "detector: d_M / threshold per sensor group"
+    } else {
+        "detector: not run by this method (pl-detect and deterministic use it)"
+    };
     render(path, (900, 420), |root| {
         chart(
             root,
-            "detector: d_M / threshold per sensor group",
+            title,
             "normalised distance",
             &t,
             &series,
