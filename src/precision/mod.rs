@@ -29,6 +29,20 @@ pub struct LearnerInput<'a> {
     pub detection: &'a Detection,
 }
 
+impl LearnerInput<'_> {
+    /// (channel, e^2 [+ c]) for every channel with a residual this tick; the posterior-variance
+    /// correction c is added when `correct` is set.
+    pub fn squared_residuals(&self, correct: bool) -> impl Iterator<Item = (usize, f64)> + '_ {
+        self.residuals
+            .iter()
+            .zip(self.corrections)
+            .enumerate()
+            .filter_map(move |(c, (e, corr))| {
+                e.map(|e| (c, e * e + if correct { *corr } else { 0.0 }))
+            })
+    }
+}
+
 /// A precision learner: one scalar precision per channel.
 pub trait PrecisionLearner: Send {
     /// The precisions to use for the next tick.
@@ -63,11 +77,6 @@ impl PrecisionBounds {
 /// Health of a channel: omega / omega_nominal clamped to [0, 1].
 pub fn health(omega: f64, nominal: f64) -> f64 {
     (omega / nominal).clamp(0.0, 1.0)
-}
-
-/// Squared residual, with the posterior-variance correction when asked.
-fn squared(e: f64, c: f64, correct: bool) -> f64 {
-    e * e + if correct { c } else { 0.0 }
 }
 
 /// `fixed`: the nominal precisions, always (no fault tolerance).
@@ -129,12 +138,9 @@ impl PrecisionLearner for Gradient {
         if self.gated && input.detection.fired_tick.is_none() {
             return;
         }
-        for c in 0..self.omega.len() {
-            let Some(e) = input.residuals[c] else {
-                continue;
-            };
+        for (c, v) in input.squared_residuals(self.correct) {
             let w = self.omega[c];
-            let grad = 0.5 * (w * squared(e, input.corrections[c], self.correct) - 1.0);
+            let grad = 0.5 * (w * v - 1.0);
             // The step in zeta is bounded so one outlier cannot overflow exp.
             let step = (input.dt * self.kappa_zeta * grad).clamp(-50.0, 50.0);
             let zeta = w.ln() - step;
@@ -202,12 +208,9 @@ impl PrecisionLearner for Bayes {
         &self.omega
     }
     fn update(&mut self, input: &LearnerInput<'_>) {
-        for c in 0..self.omega.len() {
-            let Some(e) = input.residuals[c] else {
-                continue;
-            };
+        for (c, v) in input.squared_residuals(self.correct) {
             self.a[c] = self.rho * self.a[c] + 0.5;
-            self.b[c] = self.rho * self.b[c] + 0.5 * squared(e, input.corrections[c], self.correct);
+            self.b[c] = self.rho * self.b[c] + 0.5 * v;
             self.omega[c] = self.bounds.clamp(self.a[c] / self.b[c], self.nominal[c]);
         }
     }
@@ -247,11 +250,7 @@ impl PrecisionLearner for Window {
         &self.omega
     }
     fn update(&mut self, input: &LearnerInput<'_>) {
-        for c in 0..self.omega.len() {
-            let Some(e) = input.residuals[c] else {
-                continue;
-            };
-            let v = squared(e, input.corrections[c], self.correct);
+        for (c, v) in input.squared_residuals(self.correct) {
             let head = self.heads[c];
             self.sums[c] += v - self.buffers[c][head];
             self.buffers[c][head] = v;
