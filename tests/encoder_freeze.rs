@@ -134,3 +134,18 @@ fn three_dof_arm_reaches_its_target_after_its_encoder_freezes() {
     let (no_ft, _) = run_recorded(&s, Method::NoFt, 1, None);
     assert!(no_ft.max_final_error >= 0.05 || no_ft.mse_faulty.unwrap() >= 1e-3);
 }
+
+#[test]
+fn spatial_arm_with_an_off_axis_camera_recovers_from_a_yaw_encoder_freeze() {
+    let s = setup("spatial3_encoder_freeze.toml", &[]);
+    let (r, rec) = run_recorded(&s, Method::PlAlways, 1, None);
+    eprintln!(
+        "spatial pl-always: final errors {:?}, MSE {:?}",
+        r.final_error_per_joint, r.mse_per_joint
+    );
+    assert!(r.max_final_error <= 0.02, "{:?}", r.final_error_per_joint);
+    assert!(r.mse_faulty.unwrap() <= 1e-5);
+    assert!(at(&rec, "health_enc1", 19.9) < 0.01);
+    let (no_ft, _) = run_recorded(&s, Method::NoFt, 1, None);
+    assert!(no_ft.max_final_error >= 0.05 || no_ft.mse_faulty.unwrap() >= 1e-3);
+}

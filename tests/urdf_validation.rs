@@ -363,7 +363,11 @@ fn meshes_are_skipped_with_a_warning_and_never_resolved() {
 
 #[test]
 fn bundled_urdfs_are_valid() {
-    for file in ["urdf/planar_2dof.urdf", "urdf/planar_3dof.urdf"] {
+    for file in [
+        "urdf/planar_2dof.urdf",
+        "urdf/planar_3dof.urdf",
+        "urdf/spatial_3dof.urdf",
+    ] {
         let m = aift::plant::load_urdf(&common::repo(file)).unwrap();
         assert!(m.warnings.is_empty(), "{file}: {:?}", m.warnings);
     }
