@@ -11,6 +11,19 @@ fn physics_tick(c: &mut Criterion) {
     arm.set_state(&[-1.2, 0.8], &[0.5, -0.3]);
     arm.set_torques(&[20.0, 5.0]);
     c.bench_function("physics_tick_2dof", |b| b.iter(|| arm.step(1e-3)));
+    let mut arm4 = Arm::from_urdf(
+        &path,
+        ArmOptions {
+            solver_iterations: 4,
+            ..ArmOptions::default()
+        },
+    )
+    .expect("paper arm");
+    arm4.set_state(&[-1.2, 0.8], &[0.5, -0.3]);
+    arm4.set_torques(&[20.0, 5.0]);
+    c.bench_function("physics_tick_2dof_4_iterations", |b| {
+        b.iter(|| arm4.step(1e-3))
+    });
     let path3 = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("urdf/planar_3dof.urdf");
     if let Ok(mut arm3) = Arm::from_urdf(&path3, ArmOptions::default()) {
         arm3.set_state(&[-1.2, 0.8, 0.3], &[0.0; 3]);

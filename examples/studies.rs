@@ -4,13 +4,17 @@
 //!   precisions and in the authors' "tuning units" (every precision 1);
 //! - `prior-scale`: who gets blamed for a frozen encoder as the state prior P_mu varies;
 //! - `prediction`: the paper's against the coupled prediction, encoder and tachometer freezes;
-//! - `fault-sites`: every method on tachometer-1 freeze, camera freeze and camera bias.
+//! - `fault-sites`: every method on tachometer-1 freeze, camera freeze and camera bias;
+//! - `integral-gain`: how far joint 1 is from the first target at 7.5 s for Ki = 50 and 150;
+//! - `warm-up`: the lowest channel health of a 200 s healthy run with and without the prior's
+//!   warm-up.
 //!
 //! `cargo run --release --example studies -- STUDY [SEEDS]` (every study when none is named).
 
 use aift::scenario::calibrate::calibrate;
 use aift::scenario::table::run_table;
-use aift::scenario::{LoadedScenario, Method, RunSetup};
+use aift::scenario::{LoadedScenario, Method, RunSetup, TrajectoryRecorder, run};
+use aift::sensors::ChannelLayout;
 
 fn setup(file: &str, overrides: &[&str]) -> RunSetup {
     let root = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"));
@@ -178,6 +182,60 @@ fn fault_sites(seeds: &[u64]) {
     }
 }
 
+fn integral_gain(seeds: &[u64]) {
+    println!("\n### integral gain: distance to the first target at 7.5 s (healthy run, no-ft)\n");
+    println!("| Ki (N m/(rad s)) | joint 1 (rad) | joint 2 (rad) |");
+    println!("|---|---|---|");
+    for ki in ["50.0", "150.0"] {
+        let o = format!("controller.gains.ki=[{ki}, {ki}]");
+        let s = setup(HEALTHY, &[&o]);
+        let mut err = [0.0; 2];
+        for &seed in seeds {
+            let mut rec = TrajectoryRecorder::new(ChannelLayout::new(2));
+            run(&s, Method::NoFt, seed, None, &mut rec).expect("run");
+            let row = &rec.rows[7499];
+            for j in 0..2 {
+                let q = row[rec.column(&format!("q{}", j + 1)).unwrap()];
+                let target = s.scenario().targets[0].q[j];
+                err[j] += (q - target).abs() / seeds.len() as f64;
+            }
+        }
+        println!("| {ki} | {:.4} | {:.4} |", err[0], err[1]);
+    }
+}
+
+fn warm_up(seeds: &[u64]) {
+    println!("\n### prior warm-up: lowest health over a 200 s healthy run (when)\n");
+    println!("| warm-up ticks | method | lowest health | channel | at t (s) |");
+    println!("|---|---|---|---|---|");
+    for ticks in ["100", "0"] {
+        let o = format!("controller.prior_warmup_ticks={ticks}");
+        let s = setup(HEALTHY, &["duration=200.0", &o]);
+        for method in [Method::PlAlways, Method::Window] {
+            let mut lowest = (f64::INFINITY, String::new(), 0.0);
+            for &seed in seeds {
+                let mut rec = TrajectoryRecorder::new(ChannelLayout::new(2));
+                run(&s, method, seed, None, &mut rec).expect("run");
+                for name in rec.header.iter().filter(|h| h.starts_with("health_")) {
+                    let c = rec.column(name).unwrap();
+                    for row in &rec.rows {
+                        if row[c] < lowest.0 {
+                            lowest = (row[c], name.replace("health_", ""), row[0]);
+                        }
+                    }
+                }
+            }
+            println!(
+                "| {ticks} | {} | {:.3} | {} | {:.3} |",
+                method.name(),
+                lowest.0,
+                lowest.1,
+                lowest.2
+            );
+        }
+    }
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let study = args.first().map(String::as_str).unwrap_or("all");
@@ -189,11 +247,15 @@ fn main() {
         "prior-scale" => prior_scale(&seeds),
         "prediction" => prediction(&seeds),
         "fault-sites" => fault_sites(&seeds),
+        "integral-gain" => integral_gain(&seeds),
+        "warm-up" => warm_up(&seeds),
         _ => {
             update_scheme(&seeds);
             prior_scale(&seeds);
             prediction(&seeds);
             fault_sites(&seeds);
+            integral_gain(&seeds);
+            warm_up(&seeds);
         }
     }
 }

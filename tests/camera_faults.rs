@@ -4,7 +4,8 @@
 mod common;
 
 use aift::scenario::Method;
-use common::{run_recorded, setup};
+use aift::scenario::calibrate::calibrate;
+use common::{min_between, run_recorded, setup};
 
 #[test]
 fn camera_bias_loses_the_camera_its_weight_and_the_arm_reaches() {
@@ -24,13 +25,16 @@ fn camera_bias_loses_the_camera_its_weight_and_the_arm_reaches() {
 #[test]
 fn camera_freeze_recovers_like_an_encoder_freeze() {
     let s = setup("paper_camera_freeze.toml", &[]);
+    let cal = calibrate(&s, 50).unwrap();
     for method in [
         Method::PlAlways,
+        Method::PlDetect,
+        Method::Deterministic,
         Method::Bayes,
         Method::Window,
         Method::Oracle,
     ] {
-        let (r, _) = run_recorded(&s, method, 1, None);
+        let (r, rec) = run_recorded(&s, method, 1, Some(&cal));
         let worst = r.mse_per_joint.iter().copied().fold(0.0, f64::max);
         eprintln!(
             "{method}: camera health {:.2e} / {:.2e}, final error {:.4}, worst-joint MSE {worst:.3e}",
@@ -38,5 +42,10 @@ fn camera_freeze_recovers_like_an_encoder_freeze() {
         );
         assert!(r.max_final_error <= 0.02, "{method}: {}", r.max_final_error);
         assert!(worst <= 1e-5, "{method}: {worst}");
+        // The channels that did not fail keep their weight over the last 5 s.
+        for name in ["enc1", "enc2", "tach1", "tach2"] {
+            let h = min_between(&rec, &format!("health_{name}"), 15.0, 20.0);
+            assert!(h > 0.5, "{method}: {name} health fell to {h}");
+        }
     }
 }

@@ -124,6 +124,41 @@ fn run_writes_every_output_and_reruns_bit_identically_from_its_folder() {
 }
 
 #[test]
+fn aift_without_a_command_runs_the_default_scenario() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = aift(&[], tmp.path());
+    ok(&out);
+    assert!(
+        tmp.path()
+            .join("runs/paper_encoder_freeze-pl-always-1/summary.json")
+            .is_file()
+    );
+    // Again: the folder is not empty, so it needs --force, and nothing is touched.
+    let again = aift(&[], tmp.path());
+    assert_eq!(again.status.code(), Some(2));
+}
+
+#[test]
+fn a_run_that_fails_after_loading_leaves_no_folder() {
+    let tmp = tempfile::tempdir().unwrap();
+    std::fs::write(tmp.path().join("bad.json"), "{}").unwrap();
+    let out = aift(
+        &[
+            "run",
+            "--method",
+            "deterministic",
+            "--calib",
+            "bad.json",
+            "--out",
+            "never",
+        ],
+        tmp.path(),
+    );
+    assert_eq!(out.status.code(), Some(2));
+    assert!(!tmp.path().join("never").exists());
+}
+
+#[test]
 fn three_dof_run_reaches_its_target_after_the_freeze() {
     let tmp = tempfile::tempdir().unwrap();
     ok(&aift(
@@ -255,6 +290,8 @@ fn table_is_identical_for_one_and_two_threads() {
                 threads,
             ])
             .env("RAYON_NUM_THREADS", threads)
+            // Calibrate in each process: the calibration's thread invariance is under test too.
+            .env("AIFT_CACHE_DIR", "off")
             .current_dir(tmp.path())
             .output()
             .unwrap();

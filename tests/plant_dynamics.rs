@@ -42,7 +42,9 @@ fn matches_rk4_reference_with_zero_and_constant_torques() {
     let oracle = PaperArm::default();
     for tau in [[0.0, 0.0], [30.0, -8.0]] {
         let (q_ref, _) = oracle.rk4([0.3, 0.2], [0.0, 0.0], tau, 2.0, 1e-5);
-        let mut arm = paper_arm(4);
+        // Default settings (2 solver iterations).
+        let mut arm =
+            Arm::from_urdf(&repo("urdf/planar_2dof.urdf"), ArmOptions::default()).unwrap();
         let (q, _) = simulate(&mut arm, [0.3, 0.2], tau, 2.0, 1e-3);
         let err = max_error(q, q_ref);
         eprintln!("tau {tau:?}: q {q:?} ref {q_ref:?} error {err:.3e}");

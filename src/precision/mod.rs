@@ -360,20 +360,26 @@ mod tests {
         // Two equal sensors of sigma = 1 averaged: residual variance 1/2, posterior variance 1/2.
         let shrunk = 0.5f64.sqrt();
         for correct in [false, true] {
-            let mut learner = Bayes::new(&[1.0], 0.999, correct, open);
-            let mut sum = 0.0;
-            for round in 0..200 {
-                feed(&mut learner, shrunk, 0.5, 1000, round);
-                sum += learner.precisions()[0];
-            }
-            let mean = sum / 200.0;
-            if correct {
-                assert!((mean - 1.0).abs() < 0.1, "corrected: {mean}");
-            } else {
-                assert!(
-                    (mean - 2.0).abs() < 0.2,
-                    "uncorrected over-confidence: {mean}"
-                );
+            let learners: Vec<(&str, Box<dyn PrecisionLearner>)> = vec![
+                (
+                    "gradient",
+                    Box::new(Gradient::new(&[1.0], 10.0, correct, false, open)),
+                ),
+                ("bayes", Box::new(Bayes::new(&[1.0], 0.999, correct, open))),
+                ("window", Box::new(Window::new(&[1.0], 1000, correct, open))),
+            ];
+            for (name, mut learner) in learners {
+                let mut sum = 0.0;
+                for round in 0..200 {
+                    feed(learner.as_mut(), shrunk, 0.5, 1000, round);
+                    sum += learner.precisions()[0];
+                }
+                let mean = sum / 200.0;
+                if correct {
+                    assert!((mean - 1.0).abs() < 0.1, "{name} corrected: {mean}");
+                } else {
+                    assert!((mean - 2.0).abs() < 0.2, "{name} uncorrected: {mean}");
+                }
             }
         }
     }

@@ -109,7 +109,7 @@ pub fn table_json(setup: &RunSetup, table: &Table) -> serde_json::Value {
             "isolation_correct": r.isolation_correct,
             "false_alarms": r.false_alarms,
             "diverged": r.diverged,
-            "paper_table1": r.method.paper_table1().map(|(f, h)| json!({"faulty": f, "healthy": h})),
+            "paper_table1": r.method.paper_table1().filter(|_| is_paper_experiment(setup)).map(|(f, h)| json!({"faulty": f, "healthy": h})),
         })).collect::<Vec<_>>(),
     })
 }
@@ -118,20 +118,36 @@ fn sci(v: Option<f64>) -> String {
     v.map_or_else(|| "-".into(), |x| format!("{x:.2e}"))
 }
 
-/// table.md: ours beside the paper's Table 1.
+/// Whether the scenario is the paper's experiment (a single encoder freeze), the only one its
+/// Table 1 speaks of.
+pub fn is_paper_experiment(setup: &RunSetup) -> bool {
+    use crate::sensors::{Channel, FaultKind, FaultTarget};
+    matches!(
+        setup.faults.as_slice(),
+        [f] if f.kind == FaultKind::Freeze && matches!(f.target, FaultTarget::One(Channel::Encoder(_)))
+    )
+}
+
+/// table.md: ours beside the paper's Table 1 (for the paper's experiment, an encoder freeze).
 pub fn table_markdown(setup: &RunSetup, table: &Table) -> String {
+    let paper_columns = is_paper_experiment(setup);
     let mut out = format!(
         "# {} over {} seeds ({}..={})\n\nMSE of the belief against the truth, (mu - q)^2 averaged over the run; \
-         faulty = joints whose own sensor is faulty, healthy = the others. Paper = the seed paper's Table 1.\n\n",
+         faulty = joints whose own sensor is faulty, healthy = the others. {}\n\n",
         setup.scenario().name,
         table.seeds.len(),
         table.seeds.first().copied().unwrap_or(0),
-        table.seeds.last().copied().unwrap_or(0)
+        table.seeds.last().copied().unwrap_or(0),
+        if paper_columns {
+            "Paper = the seed paper's Table 1 (the same experiment: an encoder freeze)."
+        } else {
+            "The paper's Table 1 is about an encoder freeze, not this scenario: its columns stay empty."
+        }
     );
     out += "| method | faulty MSE (ours) | paper | healthy MSE (ours) | paper | x oracle | max final error (rad) | detection delay (s) | isolation correct | false alarms | diverged |\n";
     out += "|---|---|---|---|---|---|---|---|---|---|---|\n";
     for r in &table.rows {
-        let paper = r.method.paper_table1();
+        let paper = r.method.paper_table1().filter(|_| paper_columns);
         out += &format!(
             "| {} | {} ± {} | {} | {} ± {} | {} | {} | {:.4} | {} | {} | {} | {} |\n",
             r.method.name(),

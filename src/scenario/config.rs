@@ -46,6 +46,9 @@ pub struct Scenario {
     pub faults: Vec<FaultSpec>,
 }
 
+/// Longest run, in ticks: 2e6 (2000 s at 1 kHz). A recorded run keeps every tick in memory.
+pub const MAX_TICKS: u64 = 2_000_000;
+
 fn default_dt() -> f64 {
     1e-3
 }
@@ -289,8 +292,15 @@ impl Scenario {
         }
         positive("dt", self.dt)?;
         positive("duration", self.duration)?;
-        if self.duration / self.dt > 1e8 {
-            return Err(bad("duration", "more than 1e8 ticks".into()));
+        if self.duration / self.dt > MAX_TICKS as f64 {
+            return Err(bad(
+                "duration",
+                format!(
+                    "{} ticks at dt = {}; at most {MAX_TICKS} (a run keeps every tick in memory)",
+                    self.duration / self.dt,
+                    self.dt
+                ),
+            ));
         }
         if self.dt > 0.1 {
             return Err(bad("dt", "must be <= 0.1 s".into()));
@@ -378,8 +388,11 @@ impl Scenario {
         if !(p.rho > 0.0 && p.rho < 1.0) {
             return Err(bad("precision.rho", "must be in (0, 1)".into()));
         }
-        if p.window == 0 {
-            return Err(bad("precision.window", "must be >= 1".into()));
+        if p.window == 0 || p.window as u64 > self.ticks().max(1) {
+            return Err(bad(
+                "precision.window",
+                format!("must be in 1..={} (the run's ticks)", self.ticks().max(1)),
+            ));
         }
         let b = p.bounds();
         if !(b.min_ratio.is_finite() && b.min_ratio > 0.0) {
@@ -408,6 +421,9 @@ impl Scenario {
                     "values must be finite and > 0".into(),
                 ));
             }
+        }
+        if self.detector.pool_ticks > 10_000 {
+            return Err(bad("detector.pool_ticks", "must be <= 10000".into()));
         }
         self.detector
             .config()

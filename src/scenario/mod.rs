@@ -16,7 +16,7 @@ pub mod table;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-pub use config::{GpConfig, PrecisionConfig, RobotConfig, Scenario, Target};
+pub use config::{GpConfig, MAX_TICKS, PrecisionConfig, RobotConfig, Scenario, Target};
 pub use method::Method;
 pub use runner::{NoObserver, Observer, Outcome, RunResult, TickRecord, TrajectoryRecorder, run};
 
@@ -377,25 +377,39 @@ pub fn train_gp(
     .map_err(gp_err)
 }
 
-/// A fingerprint of everything that shapes a healthy run's innovations: the scenario without
-/// its faults, method and seed (FNV-1a 64 of the canonical TOML: a label, not a security hash).
-pub fn fingerprint(scenario: &Scenario) -> String {
-    let mut s = scenario.clone();
+/// A fingerprint of everything that shapes a healthy run's innovations: the scenario without its
+/// faults, seed and learner settings (the nominal precisions kept), the URDF's text and the camera
+/// GP itself (FNV-1a 64 of the canonical text: a label, not a security hash).
+pub fn fingerprint(setup: &RunSetup) -> String {
+    let mut s = setup.scenario().clone();
     s.faults.clear();
     s.seed = 0;
-    s.precision = PrecisionConfig::default();
+    s.precision = PrecisionConfig {
+        nominal: s.precision.nominal.clone(),
+        ..PrecisionConfig::default()
+    };
     s.detector.calibration = None;
     s.detector.calibration_runs = 0;
     s.name = String::new();
     s.description = String::new();
-    // Where files live does not change a run; what they hold is pinned by the rest.
+    // Where files live does not change a run; what they hold is hashed below.
     s.robot.urdf = PathBuf::new();
-    s.gp.model = None;
-    let text = toml::to_string(&s).expect("a scenario always serialises");
+    s.gp = GpConfig::default();
+    let urdf = setup
+        .loaded
+        .read_relative(&setup.scenario().robot.urdf)
+        .map(|(_, text)| text)
+        .unwrap_or_default();
     let mut hash: u64 = 0xcbf29ce484222325;
-    for b in text.bytes() {
-        hash ^= u64::from(b);
-        hash = hash.wrapping_mul(0x100000001b3);
+    for text in [
+        toml::to_string(&s).expect("a scenario always serialises"),
+        urdf,
+        setup.gp.to_json(),
+    ] {
+        for b in text.bytes().chain(std::iter::once(0)) {
+            hash ^= u64::from(b);
+            hash = hash.wrapping_mul(0x100000001b3);
+        }
     }
     format!("{hash:016x}")
 }

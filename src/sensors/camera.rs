@@ -250,14 +250,18 @@ mod tests {
             ..CameraConfig::default()
         });
         let p = Vector3::new(0.3, 0.4, -0.2);
-        // By hand: forward f = (-1, 2, -0.5)/|.|, right = f x z / |.|, up = right x f.
-        let f = Vector3::new(-1.0, 2.0, -0.5).normalize();
-        let r = f.cross(&Vector3::z()).normalize();
-        let up = r.cross(&f);
-        let d = p - Vector3::new(1.0, -2.0, 0.5);
-        let depth = d.dot(&f);
-        let expected = [d.dot(&r) * 2.0 / depth, d.dot(&up) * 2.0 / depth];
+        // By hand: viewing direction f = (-1, 2, -0.5)/sqrt(5.25), image right r = f x z / |.| =
+        // (2, 1, 0)/sqrt(5), image up r x f = (-0.5, 1, 5)/sqrt(26.25). From the camera the point
+        // is d = (-0.7, 2.4, -0.7): depth d.f = 5.85/sqrt(5.25), d.r = 1/sqrt(5),
+        // d.up = -0.75/sqrt(26.25); scaled by reference depth / depth.
+        let depth = 5.85 / 5.25f64.sqrt();
+        let expected = [
+            (1.0 / 5f64.sqrt()) * 2.0 / depth,
+            (-0.75 / 26.25f64.sqrt()) * 2.0 / depth,
+        ];
         let got = cam.project(&p).unwrap();
+        assert!((got[0] - 0.350_323_103).abs() < 1e-9, "{got:?}");
+        assert!((got[1] + 0.114_670_153).abs() < 1e-9, "{got:?}");
         assert!((got[0] - expected[0]).abs() < 1e-14 && (got[1] - expected[1]).abs() < 1e-14);
         // A point behind the camera is not seen.
         assert!(cam.project(&Vector3::new(3.0, -6.0, 1.5)).is_none());

@@ -21,13 +21,14 @@ pub struct PidGains {
 }
 
 impl PidGains {
-    /// The prototype's working gains for the paper arm (METHOD.md section 4): Kp = 250,
-    /// Kd = diag(100, 20), Ki = 50 N m/(rad s), integral clamped to +-50 N m.
+    /// Gains for the paper arm: the prototype's Kp = 250, Kd = diag(100, 20) and integral
+    /// clamp +-50 N m (METHOD.md section 4), with Ki = 150 N m/(rad s) instead of its 50, which
+    /// left joint 1 0.012 rad short of the first target at 7.5 s (results/studies.md).
     pub fn paper() -> Self {
         Self {
             kp: vec![250.0, 250.0],
             kd: vec![100.0, 20.0],
-            ki: vec![50.0, 50.0],
+            ki: vec![150.0, 150.0],
             integral_limit: vec![50.0, 50.0],
         }
     }

@@ -8,8 +8,9 @@ use clap::{Args, Parser, Subcommand};
 #[derive(Debug, Parser)]
 #[command(name = "aift", version, about, long_about = None)]
 pub struct Cli {
+    /// What to do; without a command, `run` on the embedded default scenario.
     #[command(subcommand)]
-    pub command: Command,
+    pub command: Option<Command>,
 }
 
 #[derive(Debug, Subcommand)]
@@ -31,7 +32,7 @@ pub enum Command {
 }
 
 /// The scenario and overrides every scenario command takes.
-#[derive(Debug, Args)]
+#[derive(Debug, Default, Args)]
 pub struct ScenarioArgs {
     /// Scenario file (TOML); default: the embedded paper_encoder_freeze scenario.
     pub scenario: Option<PathBuf>,
@@ -40,7 +41,7 @@ pub struct ScenarioArgs {
     pub set: Vec<String>,
 }
 
-#[derive(Debug, Args)]
+#[derive(Debug, Default, Args)]
 pub struct RunArgs {
     #[command(flatten)]
     pub scenario: ScenarioArgs,

@@ -42,7 +42,10 @@ fn internal(error: impl Into<anyhow::Error>) -> Failure {
 }
 
 pub fn dispatch(cli: Cli) -> Result<(), Failure> {
-    match cli.command {
+    match cli
+        .command
+        .unwrap_or_else(|| Command::Run(RunArgs::default()))
+    {
         Command::CheckUrdf(args) => check_urdf(args),
         Command::Simulate(args) => simulate(args),
         Command::Run(args) => run(args),
@@ -72,8 +75,8 @@ fn parse_method(name: &str) -> Result<Method, Failure> {
         .map_err(|e| bad_input(anyhow!("--method: {e}")))
 }
 
-/// An output folder: created if missing; an existing non-empty one needs `--force`.
-fn output_dir(dir: &Path, force: bool) -> Result<(), Failure> {
+/// Checks an output folder before any work: an existing non-empty one needs `--force`.
+fn check_output_dir(dir: &Path, force: bool) -> Result<(), Failure> {
     if dir.exists() {
         if !dir.is_dir() {
             return Err(bad_input(anyhow!(
@@ -92,9 +95,27 @@ fn output_dir(dir: &Path, force: bool) -> Result<(), Failure> {
             )));
         }
     }
+    Ok(())
+}
+
+/// Creates the output folder once every input has loaded and the work is done.
+fn create_output_dir(dir: &Path) -> Result<(), Failure> {
     std::fs::create_dir_all(dir)
         .with_context(|| format!("creating {}", dir.display()))
         .map_err(internal)
+}
+
+/// Where on-the-fly calibrations are cached: `$AIFT_CACHE_DIR` (`off` disables the cache),
+/// else `$XDG_CACHE_HOME/aift`, else `$HOME/.cache/aift`.
+fn cache_dir() -> Option<PathBuf> {
+    match std::env::var_os("AIFT_CACHE_DIR") {
+        Some(v) if v == "off" => None,
+        Some(v) => Some(PathBuf::from(v)),
+        None => std::env::var_os("XDG_CACHE_HOME")
+            .map(PathBuf::from)
+            .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".cache")))
+            .map(|d| d.join("aift")),
+    }
 }
 
 /// The detector calibration a method needs: --calib, the scenario's file, or on the fly.
@@ -118,10 +139,21 @@ fn calibration_for(
             .map_err(bad_input);
     }
     let runs = setup.scenario().detector.calibration_runs;
-    eprintln!("calibrating the detector on {runs} healthy runs ...");
     let start = std::time::Instant::now();
-    let cal = calibrate::calibrate(setup, runs).map_err(bad_input)?;
-    eprintln!("calibrated in {:.1} s", start.elapsed().as_secs_f64());
+    let dir = cache_dir();
+    let (cal, cached) =
+        calibrate::cached_calibration(setup, runs, dir.as_deref()).map_err(bad_input)?;
+    if cached {
+        eprintln!(
+            "detector calibration ({runs} healthy runs) read from the cache in {}",
+            dir.as_deref().unwrap_or(Path::new("?")).display()
+        );
+    } else {
+        eprintln!(
+            "calibrated the detector on {runs} healthy runs in {:.1} s",
+            start.elapsed().as_secs_f64()
+        );
+    }
     Ok(Some(Arc::new(cal)))
 }
 
@@ -148,16 +180,14 @@ fn run(args: RunArgs) -> Result<(), Failure> {
     let dir = args.out.clone().unwrap_or_else(|| {
         PathBuf::from("runs").join(format!("{}-{}-{}", setup.scenario().name, method, seed))
     });
-    // Everything that can be wrong with the input is checked before the folder is touched.
-    if let Some(calib) = &args.calib {
-        calibrate::load_calibration(&setup, calib).map_err(bad_input)?;
-    }
-    output_dir(&dir, args.force)?;
+    // Every input is loaded and the run done before the folder is touched.
+    check_output_dir(&dir, args.force)?;
     let calibration = calibration_for(&setup, &[method], args.calib.as_ref())?;
     let layout = ChannelLayout::new(setup.model.joints.len());
     let mut recorder = TrajectoryRecorder::new(layout);
     let result = scenario::run(&setup, method, seed, calibration.as_deref(), &mut recorder)
         .map_err(bad_input)?;
+    create_output_dir(&dir)?;
     run_files::write_run(&dir, &setup, &result, &recorder, calibration.as_deref())
         .map_err(internal)?;
     let fmt_opt = |v: Option<f64>| v.map_or("n/a".to_string(), |x| format!("{x:.3e}"));
@@ -226,6 +256,7 @@ fn run(args: RunArgs) -> Result<(), Failure> {
 }
 
 fn table(args: TableArgs) -> Result<(), Failure> {
+    let start = std::time::Instant::now();
     let setup = prepare(&args.scenario)?;
     let methods: Vec<Method> = if args.methods.is_empty() {
         Method::ALL.to_vec()
@@ -239,16 +270,15 @@ fn table(args: TableArgs) -> Result<(), Failure> {
         return Err(bad_input(anyhow!("--seeds must be >= 1")));
     }
     let first = setup.scenario().seed;
-    let seeds: Vec<u64> = (0..args.seeds as u64).map(|i| first + i).collect();
+    let seeds: Vec<u64> = (0..args.seeds as u64)
+        .map(|i| first.checked_add(i))
+        .collect::<Option<_>>()
+        .ok_or_else(|| bad_input(anyhow!("seed {first} + {} overflows", args.seeds)))?;
     let dir = args
         .out
         .clone()
         .unwrap_or_else(|| PathBuf::from("tables").join(&setup.scenario().name));
-    if let Some(calib) = &args.calib {
-        calibrate::load_calibration(&setup, calib).map_err(bad_input)?;
-    }
-    output_dir(&dir, args.force)?;
-    let start = std::time::Instant::now();
+    check_output_dir(&dir, args.force)?;
     let calibration = calibration_for(&setup, &methods, args.calib.as_ref())?;
     let bar = indicatif::ProgressBar::new((methods.len() * seeds.len()) as u64);
     if !std::io::IsTerminal::is_terminal(&std::io::stderr()) {
@@ -262,6 +292,7 @@ fn table(args: TableArgs) -> Result<(), Failure> {
     let result = table::run_table(&setup, &methods, &seeds, calibration.as_deref(), &tick)
         .map_err(bad_input)?;
     bar.finish_and_clear();
+    create_output_dir(&dir)?;
     table_files::write_table(&dir, &setup, &result).map_err(internal)?;
     print!("{}", table_files::table_markdown(&setup, &result));
     println!(
@@ -337,8 +368,13 @@ fn train_gp(args: TrainGpArgs) -> Result<(), Failure> {
     let seconds = start.elapsed().as_secs_f64();
     let mut arm = Arm::new(model, loaded.scenario.robot.arm_options()).map_err(bad_input)?;
     let camera = aift::sensors::Camera::new(loaded.scenario.camera.clone());
-    let held =
-        aift::gp::evaluate_held_out(&gp, &mut arm, &camera, 2000, loaded.scenario.gp.seed + 1);
+    let held = aift::gp::evaluate_held_out(
+        &gp,
+        &mut arm,
+        &camera,
+        2000,
+        loaded.scenario.gp.seed.wrapping_add(1),
+    );
     report::write_atomic(&args.out, gp.to_json().as_bytes()).map_err(internal)?;
     let h = &gp.hyperparameters;
     println!(
@@ -449,10 +485,11 @@ fn check_positive(name: &str, value: f64) -> Result<(), Failure> {
 fn simulate(args: SimulateArgs) -> Result<(), Failure> {
     check_positive("duration", args.duration)?;
     check_positive("dt", args.dt)?;
-    if args.duration / args.dt > 1e8 {
+    if args.duration / args.dt > aift::scenario::MAX_TICKS as f64 {
         return Err(bad_input(anyhow!(
-            "--duration / --dt = {} steps; more than 1e8 is refused",
-            args.duration / args.dt
+            "--duration / --dt = {} steps; more than {} is refused",
+            args.duration / args.dt,
+            aift::scenario::MAX_TICKS
         )));
     }
     let mut options = ArmOptions {
