@@ -21,7 +21,7 @@ use super::urdf::{ArmModel, JointKind, ShapeSpec};
 
 /// Settings of the simulated arm. Defaults: end effector `ee`, no offset, gravity 9.81 m/s^2
 /// along -z, 2 solver iterations (they act as substeps, METHOD.md section 8): on the paper arm a
-/// tick costs 5.9 us with 2 and 9.6 us with 4, and the error against the closed-form RK4 oracle
+/// tick costs 6.1 us with 2 and 9.7 us with 4, and the error against the closed-form RK4 oracle
 /// after 2 s is of order 1e-5 rad (tests/plant_dynamics.rs, results/criterion.txt).
 #[derive(Clone, Debug, PartialEq)]
 pub struct ArmOptions {

@@ -296,8 +296,7 @@ fn table(args: TableArgs) -> Result<(), Failure> {
     table_files::write_table(&dir, &setup, &result).map_err(internal)?;
     print!("{}", table_files::table_markdown(&setup, &result));
     println!(
-        "
-{} runs ({} methods x {} seeds) in {:.1} s on {} threads; GP {}; wrote {}/table.csv, table.md, table.json, runs.csv",
+        "\n{} runs ({} methods x {} seeds) in {:.1} s (GP, calibration and runs) on {} threads; GP {}; wrote {}/table.csv, table.md, table.json, runs.csv",
         methods.len() * seeds.len(),
         methods.len(),
         seeds.len(),
