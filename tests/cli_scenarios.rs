@@ -26,6 +26,19 @@ fn ok(out: &Output) {
     );
 }
 
+/// Every file a run writes (detector methods add calibration.json).
+const RUN_FILES: [&str; 9] = [
+    "trajectory.csv",
+    "summary.json",
+    "scenario.resolved.toml",
+    "joints.svg",
+    "health.svg",
+    "detector.svg",
+    "free_energy.svg",
+    "robot.urdf",
+    "gp.json",
+];
+
 fn scenario(name: &str) -> String {
     repo(&format!("assets/scenarios/{name}"))
         .to_string_lossy()
@@ -44,17 +57,7 @@ fn run_writes_every_output_and_reruns_bit_identically_from_its_folder() {
         "{stdout}"
     );
     let a = tmp.path().join("a");
-    for file in [
-        "trajectory.csv",
-        "summary.json",
-        "scenario.resolved.toml",
-        "joints.svg",
-        "health.svg",
-        "detector.svg",
-        "free_energy.svg",
-        "robot.urdf",
-        "gp.json",
-    ] {
+    for file in RUN_FILES {
         assert!(a.join(file).is_file(), "{file} missing");
     }
     let summary: serde_json::Value =
@@ -172,6 +175,16 @@ fn three_dof_run_reaches_its_target_after_the_freeze() {
         ],
         tmp.path(),
     ));
+    for file in RUN_FILES {
+        assert!(tmp.path().join("r").join(file).is_file(), "{file} missing");
+    }
+    let header = std::fs::read_to_string(tmp.path().join("r/trajectory.csv"))
+        .unwrap()
+        .lines()
+        .next()
+        .unwrap()
+        .to_string();
+    assert!(header.split(',').any(|h| h == "mu3") && header.split(',').any(|h| h == "y_tach3"));
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(tmp.path().join("r/summary.json")).unwrap())
             .unwrap();
