@@ -161,6 +161,14 @@ pub struct Controller {
     covariance: DMatrix<f64>,
     rhs: DVector<f64>,
     x_hat: DVector<f64>,
+    /// The point the update is linearised at (x_hat, or x_{k-1} for the gradient scheme).
+    point: DVector<f64>,
+    /// The new belief before it is accepted.
+    candidate: DVector<f64>,
+    /// Storage the Cholesky factor of H is built in.
+    factor: DMatrix<f64>,
+    /// The prior residual e_x.
+    ex: Vec<f64>,
     g: [f64; 2],
     jac: Vec<f64>,
     report: TickReport,
@@ -192,6 +200,10 @@ impl Controller {
             covariance: DMatrix::zeros(2 * n, 2 * n),
             rhs: DVector::zeros(2 * n),
             x_hat: DVector::zeros(2 * n),
+            point: DVector::zeros(2 * n),
+            candidate: DVector::zeros(2 * n),
+            factor: DMatrix::zeros(2 * n, 2 * n),
+            ex: vec![0.0; 2 * n],
             g: [0.0; 2],
             jac: vec![0.0; 2 * n],
             report: TickReport {
@@ -406,56 +418,57 @@ impl Controller {
 
         // The Gauss-Newton Hessian H = sum w J'J + A' P_x A: the GN step's metric and, inverted,
         // the Laplace posterior covariance behind the corrections c_i.
-        let update_point = match self.config.update {
-            UpdateScheme::GaussNewton => self.x_hat.clone(),
+        match self.config.update {
+            UpdateScheme::GaussNewton => self.point.copy_from(&self.x_hat),
             UpdateScheme::Gradient => {
-                let x_cur = self.x.clone();
+                self.point.copy_from(&self.x);
                 self.gp
-                    .predict(&x_cur.as_slice()[..n], &mut g, &mut self.jac);
-                x_cur
+                    .predict(&self.point.as_slice()[..n], &mut g, &mut self.jac);
             }
-        };
+        }
         self.prior_hessian();
         self.rhs.fill(0.0);
         for c in 0..m {
             if let Some(y) = readings.get(c)
                 && precisions[c] > 0.0
             {
-                let e = y - self.predict_channel(c, &update_point, &g);
+                let e = y - self.predict_channel(c, &self.point, &g);
                 self.accumulate(c, precisions[c], e);
             }
         }
         if self.factor_hessian().is_none() {
             return self.refuse();
         }
-        let new = match self.config.update {
+        match self.config.update {
             // At x_hat the prior's gradient vanishes: -dF/dx = rhs, and x = x_hat + eta H^-1 rhs.
             UpdateScheme::GaussNewton => {
-                &self.x_hat + (&self.covariance * &self.rhs) * self.config.step
+                self.candidate.gemv(1.0, &self.covariance, &self.rhs, 0.0);
+                for i in 0..2 * n {
+                    self.candidate[i] = self.x_hat[i] + self.candidate[i] * self.config.step;
+                }
             }
             // x_k = x_{k-1} + dt (D x_{k-1} - kappa_mu dF/dx(x_{k-1})), prior mean A x_{k-2}.
             UpdateScheme::Gradient => {
                 let (_, grad) = self.free_energy(
-                    update_point.as_slice(),
+                    self.point.as_slice(),
                     self.x_prev.as_slice(),
                     readings,
                     precisions,
                 );
-                let mut new = update_point.clone();
+                self.candidate.copy_from(&self.point);
                 for i in 0..n {
-                    new[i] += dt * update_point[n + i];
+                    self.candidate[i] += dt * self.point[n + i];
                 }
-                for (v, gr) in new.iter_mut().zip(&grad) {
+                for (v, gr) in self.candidate.iter_mut().zip(&grad) {
                     *v -= dt * self.config.kappa_mu * gr;
                 }
-                new
             }
-        };
-        if !new.iter().all(|v| v.is_finite()) {
+        }
+        if !self.candidate.iter().all(|v| v.is_finite()) {
             return self.refuse();
         }
         self.x_prev.copy_from(&self.x);
-        self.x = new;
+        self.x.copy_from(&self.candidate);
 
         // Residuals after the update, the corrections c_i and F at the new belief. The camera's
         // prediction there comes from the GP's first-order expansion about the update point:
@@ -464,7 +477,7 @@ impl Controller {
         for r in 0..2 {
             let mut v = g[r];
             for d in 0..n {
-                v += self.jac[r * n + d] * (self.x[d] - update_point[d]);
+                v += self.jac[r * n + d] * (self.x[d] - self.point[d]);
             }
             self.g[r] = v;
         }
@@ -483,13 +496,14 @@ impl Controller {
                 free_energy += 0.5 * (precisions[c] * e * e - precisions[c].ln());
             }
         }
-        let mut ex = vec![0.0; 2 * n];
+        let mut ex = std::mem::take(&mut self.ex);
         self.prior_residual(&self.x, &self.x_prev, &mut ex);
         let (pm, pv) = self.prior_precisions();
         for i in 0..n {
             free_energy += 0.5 * (pm * ex[i] * ex[i] - pm.ln());
             free_energy += 0.5 * (pv * ex[n + i] * ex[n + i] - pv.ln());
         }
+        self.ex = ex;
 
         // Control: f* on the updated belief; u = f* or mu_u descending F.
         let (mu, mu_p) = self.x.as_slice().split_at(n);
@@ -515,10 +529,18 @@ impl Controller {
         &self.report
     }
 
-    /// Factorises H and stores H^-1 as the posterior covariance.
+    /// Factorises H and stores H^-1 as the posterior covariance, reusing the factor's storage.
     fn factor_hessian(&mut self) -> Option<()> {
-        let chol = self.hessian.clone().cholesky()?;
-        self.covariance = chol.inverse();
+        let dim = self.hessian.nrows();
+        let mut storage = std::mem::replace(&mut self.factor, DMatrix::zeros(0, 0));
+        storage.copy_from(&self.hessian);
+        let Some(chol) = nalgebra::linalg::Cholesky::new(storage) else {
+            self.factor = DMatrix::zeros(dim, dim);
+            return None;
+        };
+        self.covariance.fill_with_identity();
+        chol.solve_mut(&mut self.covariance);
+        self.factor = chol.unpack_dirty();
         Some(())
     }
 
