@@ -3,11 +3,13 @@
 
 use std::sync::Arc;
 
+use aift::control::{Control, ControlConfig};
+use aift::estimation::uaic::{Uaic, UaicConfig};
+use aift::estimation::{Estimate, Estimator};
 use aift::gp::{FitOptions, derive_box, sample_training_set};
 use aift::plant::{Arm, ArmOptions};
-use aift::precision::{Detection, Gradient, LearnerInput, PrecisionBounds, PrecisionLearner};
-use aift::sensors::{Camera, CameraConfig, ChannelLayout, Readings};
-use aift::uaic::{Controller, ControllerConfig};
+use aift::precision::{Gradient, PrecisionBounds, PrecisionInput, PrecisionMethod};
+use aift::sensors::{Camera, CameraConfig, CameraModel, ChannelLayout, Readings};
 use criterion::{Criterion, criterion_group, criterion_main};
 
 fn controller_tick(c: &mut Criterion) {
@@ -25,8 +27,9 @@ fn controller_tick(c: &mut Criterion) {
     let (gp, _) = sample_training_set(&mut arm, &camera, &bounds, 200, 1)
         .fit(&FitOptions::default())
         .expect("fit");
-    let layout = ChannelLayout::new(2);
-    let mut controller = Controller::new(ControllerConfig::default(), layout, Arc::new(gp), 1e-3);
+    let layout = ChannelLayout::new(2, CameraModel::Pinhole);
+    let mut belief = Uaic::new(UaicConfig::default(), layout, Arc::new(gp), 1e-3);
+    let mut control = Control::new(&ControlConfig::default());
     let readings = Readings {
         values: vec![
             Some(-0.6),
@@ -40,11 +43,13 @@ fn controller_tick(c: &mut Criterion) {
     let precisions = [1e6, 1e6, 1e6, 1e6, 1e4, 1e4];
     c.bench_function("uaic_tick_2dof_gp200", |b| {
         b.iter(|| {
-            controller.step(std::hint::black_box(&readings), &[-0.6, 0.2], &precisions);
+            belief.step(std::hint::black_box(&readings), &precisions);
+            control.step(belief.mu(), belief.mu_p(), &[-0.6, 0.2], 1e-3);
         })
     });
-    let mut learner = Gradient::new(&precisions, 10.0, true, false, PrecisionBounds::default());
-    let residuals = [
+    let mut learner = Gradient::new(&precisions, 10.0, true, PrecisionBounds::default());
+    let mut estimate = Estimate::new(&layout);
+    estimate.residuals = vec![
         Some(1e-3),
         Some(-1e-3),
         Some(2e-4),
@@ -52,15 +57,18 @@ fn controller_tick(c: &mut Criterion) {
         Some(1e-2),
         Some(-5e-3),
     ];
-    let detection = Detection::default();
     c.bench_function("gradient_learner_update_6_channels", |b| {
         b.iter(|| {
-            learner.update(&LearnerInput {
+            learner.update(&PrecisionInput {
                 tick: 0,
                 dt: 1e-3,
-                residuals: std::hint::black_box(&residuals),
-                corrections: &[0.0; 6],
-                detection: &detection,
+                layout: &layout,
+                readings: &readings,
+                estimate: std::hint::black_box(&estimate),
+                mu: &[-0.6, 0.2],
+                mu_p: &[0.0, 0.0],
+                covariance: None,
+                torques: &[0.0, 0.0],
             })
         })
     });

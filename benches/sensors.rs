@@ -3,14 +3,16 @@
 use std::path::PathBuf;
 
 use aift::plant::{Arm, ArmOptions};
-use aift::sensors::{Camera, CameraConfig, ChannelLayout, Readings, SensorConfig, SensorSuite};
+use aift::sensors::{
+    Camera, CameraConfig, CameraModel, ChannelLayout, Readings, SensorConfig, SensorSuite,
+};
 use criterion::{Criterion, criterion_group, criterion_main};
 
 fn sensing(c: &mut Criterion) {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("urdf/planar_2dof.urdf");
     let mut arm = Arm::from_urdf(&path, ArmOptions::default()).expect("paper arm");
     arm.set_state(&[-0.6, 0.2], &[0.1, 0.0]);
-    let layout = ChannelLayout::new(2);
+    let layout = ChannelLayout::new(2, CameraModel::Pinhole);
     let mut suite = SensorSuite::new(
         layout,
         &SensorConfig::default(),
@@ -19,7 +21,7 @@ fn sensing(c: &mut Criterion) {
         1e-3,
         1,
     );
-    let mut readings = Readings::missing(layout);
+    let mut readings = Readings::missing(&layout);
     let mut tick = 0u64;
     c.bench_function("sense_all_channels_2dof", |b| {
         b.iter(|| {

@@ -1,13 +1,14 @@
-//! What `aift run` does, from Rust: load a scenario, prepare the arm and GP, run one method with
-//! a trajectory recorder, and write the run's files.
+//! What `aift run` does, from Rust: load a scenario, prepare the arm and GP, stage the output
+//! folder, run one method with the trajectory streaming to its file, and move the folder into
+//! place with every file written.
 //!
 //! `cargo run --release --example run_scenario -- [SCENARIO] [METHOD] [OUT_DIR]`
 
 use std::path::PathBuf;
 
+use aift::fsio::{OutputKind, Staged};
 use aift::report::run_files;
-use aift::scenario::{self, LoadedScenario, Method, RunSetup, TrajectoryRecorder, calibrate};
-use aift::sensors::ChannelLayout;
+use aift::scenario::{LoadedScenario, Method, RunSetup, calibrate};
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -24,6 +25,8 @@ fn main() -> anyhow::Result<()> {
     let out = PathBuf::from(args.get(2).cloned().unwrap_or_else(|| "example-run".into()));
 
     let setup = RunSetup::prepare(loaded)?;
+    // Checked before any work: where the folder goes, and that no other process writes it.
+    let staged = Staged::begin(&out, OutputKind::Folder, true)?;
     let calibration = if method.needs_detector() {
         Some(calibrate::calibrate(
             &setup,
@@ -32,16 +35,13 @@ fn main() -> anyhow::Result<()> {
     } else {
         None
     };
-    let mut recorder = TrajectoryRecorder::new(ChannelLayout::new(setup.model.joints.len()));
-    let result = scenario::run(
+    let result = run_files::run_into(
+        staged,
         &setup,
         method,
         setup.scenario().seed,
         calibration.as_ref(),
-        &mut recorder,
     )?;
-    std::fs::create_dir_all(&out)?;
-    run_files::write_run(&out, &setup, &result, &recorder, calibration.as_ref())?;
     println!(
         "{method}: {} | belief MSE per joint {:?} | final error {:.4} rad | files in {}",
         result.outcome.name(),

@@ -1,15 +1,17 @@
-//! The u-AIC on its own, without rapier: hand it readings (some missing), a target and
-//! precisions, get torques. Here it closes the loop around a crude point model of a joint pair
+//! The u-AIC on its own, without rapier: hand its belief readings (some missing) and
+//! precisions, hand f* the belief and a target, get torques. Here it closes the loop around a crude point model of a joint pair
 //! written in a few lines, to show that nothing in the controller knows about the simulator.
 //!
 //! `cargo run --release --example standalone_controller`
 
 use std::sync::Arc;
 
+use aift::control::{Control, ControlConfig};
+use aift::estimation::Estimator;
+use aift::estimation::uaic::{Uaic, UaicConfig};
 use aift::gp::{FitOptions, derive_box, sample_training_set};
 use aift::plant::{Arm, ArmOptions};
-use aift::sensors::{Camera, CameraConfig, ChannelLayout, Readings};
-use aift::uaic::{Controller, ControllerConfig};
+use aift::sensors::{Camera, CameraConfig, CameraModel, ChannelLayout, Readings};
 
 fn main() -> anyhow::Result<()> {
     // A camera model for the paper arm (the GP needs some source of camera data).
@@ -20,9 +22,10 @@ fn main() -> anyhow::Result<()> {
     let (gp, _) =
         sample_training_set(&mut arm, &camera, &bounds, 150, 1).fit(&FitOptions::default())?;
 
-    let layout = ChannelLayout::new(2);
+    let layout = ChannelLayout::new(2, CameraModel::Pinhole);
     let dt = 1e-3;
-    let mut controller = Controller::new(ControllerConfig::default(), layout, Arc::new(gp), dt);
+    let mut belief = Uaic::new(UaicConfig::default(), layout, Arc::new(gp), dt);
+    let mut control = Control::new(&ControlConfig::default());
     let precisions = [1e6, 1e6, 1e6, 1e6, 1e4, 1e4];
     // A toy plant: two decoupled, heavily damped joints with gravity-like offsets.
     let (mut q, mut qd) = ([-1.0f64, 0.2], [0.0f64, 0.0]);
@@ -33,7 +36,7 @@ fn main() -> anyhow::Result<()> {
             let z = 1.0446 * q[0].sin() + 1.0111 * (q[0] + q[1]).sin();
             camera.project(&nalgebra::Vector3::new(x, 0.0, z))
         };
-        let mut readings = Readings::missing(layout);
+        let mut readings = Readings::missing(&layout);
         readings.values[0] = Some(q[0]);
         readings.values[1] = Some(q[1]);
         readings.values[2] = Some(qd[0]);
@@ -43,8 +46,9 @@ fn main() -> anyhow::Result<()> {
             readings.values[4] = p.map(|v| v[0]);
             readings.values[5] = p.map(|v| v[1]);
         }
-        let report = controller.step(&readings, &target, &precisions);
-        let u = [report.torques[0], report.torques[1]];
+        let free_energy = belief.step(&readings, &precisions).free_energy;
+        let torques = control.step(belief.mu(), belief.mu_p(), &target, dt);
+        let u = [torques[0], torques[1]];
         for i in 0..2 {
             let qdd = (u[i] - 100.0 * qd[i] - 10.0 * q[i].cos()) / 5.0;
             qd[i] += dt * qdd;
@@ -56,9 +60,9 @@ fn main() -> anyhow::Result<()> {
                 k as f64 * dt,
                 q[0],
                 q[1],
-                controller.mu()[0],
-                controller.mu()[1],
-                controller.last_report().free_energy
+                belief.mu()[0],
+                belief.mu()[1],
+                free_energy.unwrap_or(f64::NAN)
             );
         }
     }

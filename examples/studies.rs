@@ -14,7 +14,6 @@
 use aift::scenario::calibrate::calibrate;
 use aift::scenario::table::run_table;
 use aift::scenario::{LoadedScenario, Method, RunSetup, TrajectoryRecorder, run};
-use aift::sensors::ChannelLayout;
 
 fn setup(file: &str, overrides: &[&str]) -> RunSetup {
     let root = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"));
@@ -47,18 +46,18 @@ fn rows(label: &str, setup: &RunSetup, methods: &[Method], seeds: &[u64]) {
         .filter(|m| !m.needs_detector() || calibration.is_some())
         .collect();
     let table = run_table(setup, &methods, seeds, calibration.as_ref(), &|| {}).expect("runs");
-    let layout = aift::sensors::ChannelLayout::new(setup.model.joints.len());
+    let layout = setup.layout;
     for row in &table.rows {
         let runs: Vec<_> = table
             .runs
             .iter()
-            .filter(|r| r.method == row.method)
+            .filter(|r| r.method == row.method.name())
             .collect();
         // Mean final health per channel, to see who got blamed.
         let health: Vec<String> = (0..layout.len())
             .map(|c| {
                 let mean = runs.iter().map(|r| r.final_health[c]).sum::<f64>() / runs.len() as f64;
-                format!("{}={:.2}", layout.channel(c).name(), mean)
+                format!("{}={:.2}", layout.name(c), mean)
             })
             .collect();
         let all = runs
@@ -191,7 +190,7 @@ fn integral_gain(seeds: &[u64]) {
         let s = setup(HEALTHY, &[&o]);
         let mut err = [0.0; 2];
         for &seed in seeds {
-            let mut rec = TrajectoryRecorder::new(ChannelLayout::new(2));
+            let mut rec = TrajectoryRecorder::new(&s.layout);
             run(&s, Method::NoFt, seed, None, &mut rec).expect("run");
             let row = &rec.rows[7499];
             for j in 0..2 {
@@ -214,7 +213,7 @@ fn warm_up(seeds: &[u64]) {
         for method in [Method::PlAlways, Method::Window] {
             let mut lowest = (f64::INFINITY, String::new(), 0.0);
             for &seed in seeds {
-                let mut rec = TrajectoryRecorder::new(ChannelLayout::new(2));
+                let mut rec = TrajectoryRecorder::new(&s.layout);
                 run(&s, method, seed, None, &mut rec).expect("run");
                 for name in rec.header.iter().filter(|h| h.starts_with("health_")) {
                     let c = rec.column(name).unwrap();

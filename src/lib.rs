@@ -1,13 +1,17 @@
 //! aift: fault-tolerant control of robot arms with active inference.
 //!
-//! The crate follows the data flow of the method (see `ARCHITECTURE.md`):
-//! [`plant`] (URDF, physics) -> sensors and faults -> generative model (GP) -> u-AIC estimation and
-//! control -> precision learners and detector -> scenario runner -> reports.
+//! The crate follows the data flow of the method (see `ARCHITECTURE.md` and `docs/method.md`):
+//! [`plant`] (URDF, physics) -> [`sensors`] and faults -> generative model ([`gp`]) ->
+//! [`estimation`] (the u-AIC and classical estimators) and [`control`] (f*, action) ->
+//! [`precision`] learners and detectors -> [`scenario`] runner, metrics, tables -> [`report`].
+//! [`fsio`] (bounded reads, atomic and staged writes) sits below them all.
 
+pub mod control;
+pub mod estimation;
+pub mod fsio;
 pub mod gp;
 pub mod plant;
 pub mod precision;
 pub mod report;
 pub mod scenario;
 pub mod sensors;
-pub mod uaic;

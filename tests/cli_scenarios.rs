@@ -228,7 +228,7 @@ fn bad_scenarios_exit_2_name_the_key_and_write_nothing() {
         (
             "bad_fault",
             base.replace("kind = \"freeze\"", "kind = \"frozen\""),
-            "faults[0].kind",
+            "`faults[0]`",
         ),
         (
             "wrong_length",

@@ -5,10 +5,16 @@ mod common;
 
 use std::sync::Arc;
 
+use aift::control::{Control, ControlConfig};
+use aift::estimation::Estimator;
+use aift::estimation::uaic::{Prediction, Uaic, UaicConfig, UpdateScheme};
 use aift::gp::{FitOptions, GpModel, derive_box, sample_training_set};
 use aift::plant::{Arm, ArmOptions};
-use aift::sensors::{Camera, CameraConfig, ChannelLayout, Readings};
-use aift::uaic::{Controller, ControllerConfig, Prediction, UpdateScheme};
+use aift::sensors::{Camera, CameraConfig, CameraModel, ChannelLayout, Readings};
+
+fn layout() -> ChannelLayout {
+    ChannelLayout::new(2, CameraModel::Pinhole)
+}
 use common::repo;
 
 fn gp() -> Arc<GpModel> {
@@ -40,12 +46,12 @@ const PRECISIONS: [f64; 6] = [1e6, 1e6, 1e6, 1e6, 1e4, 1e4];
 fn free_energy_gradient_equals_finite_differences() {
     let gp = gp();
     for prediction in [Prediction::Paper, Prediction::Coupled] {
-        let config = ControllerConfig {
+        let config = UaicConfig {
             prediction,
             prior_warmup_ticks: 0,
-            ..ControllerConfig::default()
+            ..UaicConfig::default()
         };
-        let c = Controller::new(config, ChannelLayout::new(2), gp.clone(), 1e-3);
+        let c = Uaic::new(config, layout(), gp.clone(), 1e-3);
         let x = [-0.6, 0.21, 0.04, -0.03];
         let prev = [-0.6001, 0.2102, 0.041, -0.029];
         let r = readings();
@@ -71,12 +77,7 @@ fn free_energy_gradient_equals_finite_differences() {
 
 #[test]
 fn missing_and_zero_precision_channels_are_left_out_of_f() {
-    let c = Controller::new(
-        ControllerConfig::default(),
-        ChannelLayout::new(2),
-        gp(),
-        1e-3,
-    );
+    let c = Uaic::new(UaicConfig::default(), layout(), gp(), 1e-3);
     let x = [-0.6, 0.21, 0.04, -0.03];
     let prev = x;
     let full = readings();
@@ -97,23 +98,20 @@ fn missing_and_zero_precision_channels_are_left_out_of_f() {
 }
 
 #[test]
-fn controller_runs_on_readings_with_missing_channels() {
-    let mut c = Controller::new(
-        ControllerConfig::default(),
-        ChannelLayout::new(2),
-        gp(),
-        1e-3,
-    );
+fn the_belief_runs_on_readings_with_missing_channels() {
+    let mut c = Uaic::new(UaicConfig::default(), layout(), gp(), 1e-3);
+    let mut control = Control::new(&ControlConfig::default());
     let mut r = readings();
-    c.step(&r, &[-0.6, 0.2], &PRECISIONS);
+    c.step(&r, &PRECISIONS);
     // Camera and encoder 1 gone for a while: the belief stays finite and keeps integrating.
     r.values[0] = None;
     r.values[4] = None;
     r.values[5] = None;
     for _ in 0..100 {
-        let report = c.step(&r, &[-0.6, 0.2], &PRECISIONS);
-        assert!(report.finite && report.free_energy.is_finite());
-        assert!(report.torques.iter().all(|u| u.is_finite()));
+        let report = c.step(&r, &PRECISIONS).clone();
+        assert!(report.finite && report.free_energy.is_some_and(f64::is_finite));
+        let torques = control.step(c.mu(), c.mu_p(), &[-0.6, 0.2], 1e-3);
+        assert!(torques.iter().all(|u| u.is_finite()));
         assert_eq!(report.residuals[0], None);
         assert_eq!(report.innovations[4], None);
     }
@@ -124,24 +122,24 @@ fn controller_runs_on_readings_with_missing_channels() {
 fn gauss_newton_step_lands_on_the_quadratic_models_minimum() {
     // Encoders and tachometers only (camera weight 0): F is quadratic in x, so one GN step from
     // the prediction must zero the gradient.
-    let mut c = Controller::new(
-        ControllerConfig {
+    let mut c = Uaic::new(
+        UaicConfig {
             update: UpdateScheme::GaussNewton,
             prior_warmup_ticks: 0,
-            ..ControllerConfig::default()
+            ..UaicConfig::default()
         },
-        ChannelLayout::new(2),
+        layout(),
         gp(),
         1e-3,
     );
     let precisions = [1e6, 1e6, 1e6, 1e6, 0.0, 0.0];
     let r0 = readings();
-    c.step(&r0, &[0.0, 0.0], &precisions);
+    c.step(&r0, &precisions);
     let prev: Vec<f64> = c.mu().iter().chain(c.mu_p()).copied().collect();
     let mut r1 = r0.clone();
     r1.values[0] = Some(-0.605);
     r1.values[2] = Some(0.07);
-    c.step(&r1, &[0.0, 0.0], &precisions);
+    c.step(&r1, &precisions);
     let x: Vec<f64> = c.mu().iter().chain(c.mu_p()).copied().collect();
     let (_, grad) = c.free_energy(&x, &prev, &r1, &precisions);
     for g in grad {

@@ -5,8 +5,8 @@ mod common;
 
 use aift::plant::{Arm, ArmOptions};
 use aift::sensors::{
-    Camera, CameraConfig, Channel, ChannelLayout, Fault, FaultSpec, Readings, SensorConfig,
-    SensorSuite,
+    Camera, CameraConfig, CameraModel, Channel, ChannelLayout, Fault, FaultKind, FaultSpec,
+    Readings, SensorConfig, SensorSuite,
 };
 use common::repo;
 
@@ -16,7 +16,7 @@ fn arm(file: &str) -> Arm {
 
 fn suite(arm: &Arm, faults: &[Fault], seed: u64) -> SensorSuite {
     SensorSuite::new(
-        ChannelLayout::new(arm.n_joints()),
+        ChannelLayout::new(arm.n_joints(), CameraModel::Pinhole),
         &SensorConfig::default(),
         Camera::new(CameraConfig::default()),
         faults,
@@ -29,7 +29,7 @@ fn suite(arm: &Arm, faults: &[Fault], seed: u64) -> SensorSuite {
 fn noise_series(arm: &Arm, suite: &mut SensorSuite, ticks: u64) -> Vec<Vec<f64>> {
     let layout = suite.layout();
     let mut out = vec![Vec::with_capacity(ticks as usize); layout.len()];
-    let mut readings = Readings::missing(layout);
+    let mut readings = Readings::missing(&layout);
     for k in 0..ticks {
         suite.read(arm, k, &mut readings);
         for (c, series) in out.iter_mut().enumerate() {
@@ -75,8 +75,8 @@ fn streams_are_independent_of_each_other_and_of_the_channel_count() {
     let n = 100_000;
     let s2 = noise_series(&arm2, &mut suite(&arm2, &[], 11), n);
     let s3 = noise_series(&arm3, &mut suite(&arm3, &[], 11), n);
-    let l2 = ChannelLayout::new(2);
-    let l3 = ChannelLayout::new(3);
+    let l2 = ChannelLayout::new(2, CameraModel::Pinhole);
+    let l3 = ChannelLayout::new(3, CameraModel::Pinhole);
     // Same channel, same seed: the same noise, whatever the number of joints.
     for ch in [
         Channel::Encoder(0),
@@ -117,24 +117,21 @@ fn streams_are_independent_of_each_other_and_of_the_channel_count() {
 #[test]
 fn adding_a_fault_does_not_change_another_channels_noise() {
     let arm = arm("urdf/planar_2dof.urdf");
-    let spikes = FaultSpec {
-        channel: "enc1".into(),
-        kind: "spikes".into(),
-        start: 0.0,
-        end: None,
-        offset: None,
-        rate: None,
-        factor: None,
-        value: None,
-        probability: Some(0.5),
-        magnitude: Some(1.0),
-    }
-    .to_fault(2)
+    let spikes = spec(
+        "enc1",
+        FaultKind::Spikes {
+            probability: 0.5,
+            magnitude: 1.0,
+        },
+        0.0,
+        None,
+    )
+    .to_fault(&layout2())
     .unwrap();
     let mut clean = suite(&arm, &[], 3);
     let mut faulty = suite(&arm, &[spikes], 3);
     let layout = clean.layout();
-    let (mut a, mut b) = (Readings::missing(layout), Readings::missing(layout));
+    let (mut a, mut b) = (Readings::missing(&layout), Readings::missing(&layout));
     let mut differed = false;
     for k in 0..2000 {
         clean.read(&arm, k, &mut a);
@@ -152,7 +149,7 @@ fn readings_are_truth_plus_noise_and_the_camera_sees_the_distorted_tip() {
     let mut arm = arm("urdf/planar_2dof.urdf");
     arm.set_state(&[-0.2, 0.5], &[0.3, -0.1]);
     let mut s = suite(&arm, &[], 5);
-    let mut r = Readings::missing(s.layout());
+    let mut r = Readings::missing(&s.layout());
     s.read(&arm, 0, &mut r);
     let noise = s.noise().to_vec();
     assert_eq!(r.values[0], Some(-0.2 + noise[0]));
@@ -176,15 +173,8 @@ fn an_occluded_end_effector_reports_missing() {
         up: [1.0, 0.0, 0.0],
         ..CameraConfig::default()
     });
-    let mut s = SensorSuite::new(
-        ChannelLayout::new(2),
-        &SensorConfig::default(),
-        camera,
-        &[],
-        1e-3,
-        1,
-    );
-    let mut r = Readings::missing(s.layout());
+    let mut s = SensorSuite::new(layout2(), &SensorConfig::default(), camera, &[], 1e-3, 1);
+    let mut r = Readings::missing(&s.layout());
     arm.set_state(&[-std::f64::consts::FRAC_PI_2, 0.0], &[0.0, 0.0]);
     s.read(&arm, 0, &mut r);
     assert_eq!((r.values[4], r.values[5]), (None, None));
@@ -196,18 +186,16 @@ fn an_occluded_end_effector_reports_missing() {
     assert!(r.values[4].is_some() && r.values[5].is_some());
 }
 
-fn spec(channel: &str, kind: &str, start: f64, end: Option<f64>) -> FaultSpec {
+fn layout2() -> ChannelLayout {
+    ChannelLayout::new(2, CameraModel::Pinhole)
+}
+
+fn spec(channel: &str, kind: FaultKind, start: f64, end: Option<f64>) -> FaultSpec {
     FaultSpec {
         channel: channel.into(),
-        kind: kind.into(),
+        kind,
         start,
         end,
-        offset: None,
-        rate: None,
-        factor: None,
-        value: None,
-        probability: None,
-        magnitude: None,
     }
 }
 
@@ -220,12 +208,12 @@ fn with_and_without(
     let mut arm = arm("urdf/planar_2dof.urdf");
     arm.set_state(&[-0.5, 0.5], &[0.0, 0.0]);
     arm.set_torques(&[60.0, 5.0]);
-    let fault = fault.to_fault(2).unwrap();
+    let fault = fault.to_fault(&layout2()).unwrap();
     let mut clean = suite(&arm, &[], 9);
     let mut faulty = suite(&arm, &[fault], 9);
     let (mut a, mut b) = (
-        Readings::missing(clean.layout()),
-        Readings::missing(clean.layout()),
+        Readings::missing(&clean.layout()),
+        Readings::missing(&clean.layout()),
     );
     let (mut fa, mut cl, mut noise) = (vec![], vec![], vec![]);
     for k in 0..300 {
@@ -248,7 +236,7 @@ fn assert_only_between(fa: &[Option<f64>], cl: &[Option<f64>]) {
 
 #[test]
 fn freeze_holds_the_reading_of_its_first_tick() {
-    let (fa, cl, _) = with_and_without(spec("enc1", "freeze", 0.1, Some(0.2)), 0);
+    let (fa, cl, _) = with_and_without(spec("enc1", FaultKind::Freeze {}, 0.1, Some(0.2)), 0);
     assert_only_between(&fa, &cl);
     for k in 100..200 {
         assert_eq!(fa[k], cl[100], "tick {k}");
@@ -258,8 +246,7 @@ fn freeze_holds_the_reading_of_its_first_tick() {
 
 #[test]
 fn bias_adds_an_offset() {
-    let mut s = spec("cam_u", "bias", 0.1, Some(0.2));
-    s.offset = Some(0.04);
+    let s = spec("cam_u", FaultKind::Bias { offset: 0.04 }, 0.1, Some(0.2));
     let (fa, cl, _) = with_and_without(s, 4);
     assert_only_between(&fa, &cl);
     for k in 100..200 {
@@ -269,8 +256,7 @@ fn bias_adds_an_offset() {
 
 #[test]
 fn drift_grows_at_its_rate() {
-    let mut s = spec("tach2", "drift", 0.1, Some(0.2));
-    s.rate = Some(2.0);
+    let s = spec("tach2", FaultKind::Drift { rate: 2.0 }, 0.1, Some(0.2));
     let (fa, cl, _) = with_and_without(s, 3);
     assert_only_between(&fa, &cl);
     for k in 100..200 {
@@ -284,8 +270,7 @@ fn drift_grows_at_its_rate() {
 
 #[test]
 fn gain_scales_the_reading() {
-    let mut s = spec("enc2", "gain", 0.1, Some(0.2));
-    s.factor = Some(1.5);
+    let s = spec("enc2", FaultKind::Gain { factor: 1.5 }, 0.1, Some(0.2));
     let (fa, cl, _) = with_and_without(s, 1);
     assert_only_between(&fa, &cl);
     for k in 100..200 {
@@ -295,8 +280,7 @@ fn gain_scales_the_reading() {
 
 #[test]
 fn noise_fault_multiplies_the_noise() {
-    let mut s = spec("enc1", "noise", 0.1, Some(0.2));
-    s.factor = Some(10.0);
+    let s = spec("enc1", FaultKind::Noise { factor: 10.0 }, 0.1, Some(0.2));
     let (fa, cl, noise) = with_and_without(s, 0);
     assert_only_between(&fa, &cl);
     for k in 100..200 {
@@ -307,15 +291,14 @@ fn noise_fault_multiplies_the_noise() {
 
 #[test]
 fn dropout_makes_the_reading_missing() {
-    let (fa, cl, _) = with_and_without(spec("cam", "dropout", 0.1, Some(0.2)), 5);
+    let (fa, cl, _) = with_and_without(spec("cam", FaultKind::Dropout {}, 0.1, Some(0.2)), 5);
     assert_only_between(&fa, &cl);
     assert!(fa[100..200].iter().all(Option::is_none));
 }
 
 #[test]
 fn stuck_reports_a_constant() {
-    let mut s = spec("tach1", "stuck", 0.1, Some(0.2));
-    s.value = Some(3.0);
+    let s = spec("tach1", FaultKind::Stuck { value: 3.0 }, 0.1, Some(0.2));
     let (fa, cl, _) = with_and_without(s, 2);
     assert_only_between(&fa, &cl);
     assert!(fa[100..200].iter().all(|v| *v == Some(3.0)));
@@ -323,9 +306,15 @@ fn stuck_reports_a_constant() {
 
 #[test]
 fn spikes_are_outliers_with_the_given_probability() {
-    let mut s = spec("enc1", "spikes", 0.1, Some(0.2));
-    s.probability = Some(0.3);
-    s.magnitude = Some(0.5);
+    let s = spec(
+        "enc1",
+        FaultKind::Spikes {
+            probability: 0.3,
+            magnitude: 0.5,
+        },
+        0.1,
+        Some(0.2),
+    );
     let (fa, cl, _) = with_and_without(s, 0);
     assert_only_between(&fa, &cl);
     let mut spikes = 0;
@@ -342,22 +331,94 @@ fn spikes_are_outliers_with_the_given_probability() {
 
 #[test]
 fn fault_specs_are_validated_field_by_field() {
+    let freeze = FaultKind::Freeze {};
     let cases = [
-        (spec("enc3", "freeze", 1.0, None), "channel"),
-        (spec("enc1", "frezee", 1.0, None), "kind"),
-        (spec("enc1", "bias", 1.0, None), "offset"),
-        (spec("enc1", "freeze", -1.0, None), "start"),
-        (spec("enc1", "freeze", 2.0, Some(1.0)), "end"),
-        (spec("enc1", "freeze", f64::NAN, None), "start"),
+        (spec("enc3", freeze, 1.0, None), "channel"),
+        (spec("enc1", freeze, -1.0, None), "start"),
+        (spec("enc1", freeze, 2.0, Some(1.0)), "end"),
+        (spec("enc1", freeze, f64::NAN, None), "start"),
         (
-            FaultSpec {
-                offset: Some(1.0),
-                ..spec("enc1", "freeze", 1.0, None)
-            },
+            spec("enc1", FaultKind::Bias { offset: f64::NAN }, 1.0, None),
             "offset",
+        ),
+        (
+            spec(
+                "enc1",
+                FaultKind::Spikes {
+                    probability: 2.0,
+                    magnitude: 1.0,
+                },
+                1.0,
+                None,
+            ),
+            "probability",
         ),
     ];
     for (s, field) in cases {
-        assert_eq!(s.to_fault(2).unwrap_err().0, field, "{s:?}");
+        assert_eq!(s.to_fault(&layout2()).unwrap_err().0, field, "{s:?}");
+    }
+}
+
+/// A fault as a file writes it: the kind is a tag, its parameters are typed, and a parameter
+/// the kind does not have, a missing one or an unknown kind is refused by the parser.
+#[test]
+fn fault_kinds_parse_as_tagged_data() {
+    let parse = |text: &str| toml::from_str::<FaultSpec>(text);
+    let f = parse("channel = \"enc1\"\nkind = \"bias\"\nstart = 1.0\noffset = 0.04").unwrap();
+    assert_eq!(f.kind, FaultKind::Bias { offset: 0.04 });
+    let f =
+        parse("channel = [\"enc1\", \"cam\"]\nkind = \"freeze\"\nstart = 1.0\nend = 2.0").unwrap();
+    let fault = f.to_fault(&layout2()).unwrap();
+    assert_eq!(fault.channels, vec![0, 4, 5]);
+    assert_eq!(fault.end, Some(2.0));
+    for bad in [
+        "channel = \"enc1\"\nkind = \"freeze\"\nstart = 1.0\noffset = 0.04",
+        "channel = \"enc1\"\nkind = \"bias\"\nstart = 1.0",
+        "channel = \"enc1\"\nkind = \"frezee\"\nstart = 1.0",
+        "channel = \"enc1\"\nkind = \"dropout\"\nstart = 1.0\nvalue = 3.0",
+    ] {
+        assert!(parse(bad).is_err(), "{bad}");
+    }
+    // Round trip.
+    let f = parse(
+        "channel = \"tach2\"\nkind = \"spikes\"\nstart = 1.0\nprobability = 0.1\nmagnitude = 2.0",
+    )
+    .unwrap();
+    assert_eq!(parse(&toml::to_string(&f).unwrap()).unwrap(), f);
+}
+
+/// Two overlapping faults on one channel apply in file order; each ends on its own.
+#[test]
+fn overlapping_faults_apply_in_order_and_end_separately() {
+    let mut arm = arm("urdf/planar_2dof.urdf");
+    arm.set_state(&[-0.5, 0.5], &[0.0, 0.0]);
+    let bias = spec("enc1", FaultKind::Bias { offset: 0.1 }, 0.1, Some(0.3))
+        .to_fault(&layout2())
+        .unwrap();
+    let gain = spec("enc", FaultKind::Gain { factor: 2.0 }, 0.2, Some(0.4))
+        .to_fault(&layout2())
+        .unwrap();
+    let mut clean = suite(&arm, &[], 4);
+    let mut faulty = suite(&arm, &[bias, gain], 4);
+    let l = layout2();
+    let (mut a, mut b) = (Readings::missing(&l), Readings::missing(&l));
+    for k in 0..500u64 {
+        clean.read(&arm, k, &mut a);
+        faulty.read(&arm, k, &mut b);
+        let (c, f) = (a.values[0].unwrap(), b.values[0].unwrap());
+        let expected = match k {
+            100..200 => c + 0.1,
+            200..300 => (c + 0.1) * 2.0,
+            300..400 => c * 2.0,
+            _ => c,
+        };
+        assert!((f - expected).abs() < 1e-12, "tick {k}: {f} vs {expected}");
+        let (c2, f2) = (a.values[1].unwrap(), b.values[1].unwrap());
+        let expected2 = if (200..400).contains(&k) {
+            c2 * 2.0
+        } else {
+            c2
+        };
+        assert!((f2 - expected2).abs() < 1e-12, "enc2 tick {k}");
     }
 }

@@ -32,12 +32,8 @@ pub enum GpError {
     NotPositiveDefinite,
     #[error("GP hyperparameter optimisation failed: {0}")]
     Optimiser(String),
-    #[error("{path}: cannot read the GP model")]
-    Read {
-        path: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
+    #[error("cannot read the GP model")]
+    Read(#[from] crate::fsio::FsError),
     #[error("{path}: not a valid GP model: {message}")]
     Parse { path: PathBuf, message: String },
     #[error("{path}: the GP model takes {model} joint angles, the arm has {arm} joints")]
@@ -274,10 +270,7 @@ impl GpModel {
 
     /// Loads a model from a JSON file.
     pub fn load(path: &Path) -> Result<Self, GpError> {
-        let text = std::fs::read_to_string(path).map_err(|source| GpError::Read {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let text = crate::fsio::read_text(path, crate::fsio::MAX_GP_BYTES)?;
         Self::from_json(&text, path)
     }
 }

@@ -20,7 +20,8 @@ const HELD_OUT_STREAM: u64 = 50_002;
 #[derive(Clone, Debug, PartialEq)]
 pub struct TrainingSet {
     pub inputs: Vec<Vec<f64>>,
-    pub outputs: Vec<[f64; 2]>,
+    /// One reading per input, one value per camera output.
+    pub outputs: Vec<Vec<f64>>,
     pub training_box: Vec<[f64; 2]>,
     pub seed: u64,
     /// Configurations drawn but not seen by the camera (occluded or behind), skipped.
@@ -89,14 +90,18 @@ pub fn sample_training_set(
         seed,
         skipped: 0,
     };
+    let mut z = vec![0.0; camera.outputs()];
+    let mut image = vec![0.0; camera.outputs()];
     for q in latin_hypercube(bounds, count, &mut lhs) {
         arm.set_state(&q, &zeros);
-        let zu: f64 = StandardNormal.sample(&mut noise);
-        let zv: f64 = StandardNormal.sample(&mut noise);
-        match camera.observe(arm) {
-            Ok([u, v]) => {
+        for zr in z.iter_mut() {
+            *zr = StandardNormal.sample(&mut noise);
+        }
+        match camera.observe(arm, &mut image) {
+            Ok(()) => {
                 set.inputs.push(q);
-                set.outputs.push([u + sigma * zu, v + sigma * zv]);
+                set.outputs
+                    .push(image.iter().zip(&z).map(|(v, zr)| v + sigma * zr).collect());
             }
             Err(_) => set.skipped += 1,
         }
@@ -109,7 +114,8 @@ impl TrainingSet {
     pub fn fit(&self, options: &FitOptions) -> Result<(GpModel, FitReport), GpError> {
         let n = self.inputs.first().map_or(0, Vec::len);
         let x = DMatrix::from_fn(self.inputs.len(), n, |i, d| self.inputs[i][d]);
-        let y = DMatrix::from_fn(self.outputs.len(), 2, |i, c| self.outputs[i][c]);
+        let r = self.outputs.first().map_or(0, Vec::len);
+        let y = DMatrix::from_fn(self.outputs.len(), r, |i, c| self.outputs[i][c]);
         super::fit::fit(&x, &y, self.training_box.clone(), self.seed, options)
     }
 }
@@ -117,9 +123,9 @@ impl TrainingSet {
 /// The GP's error on held-out configurations against the noise-free distorted camera.
 #[derive(Clone, Debug, PartialEq)]
 pub struct HeldOutError {
-    /// Root mean square over points and both coordinates (m).
+    /// Root mean square over points and every output (m).
     pub rms: f64,
-    /// Largest image-plane distance (m).
+    /// Largest distance between prediction and truth (m).
     pub max: f64,
     pub points: usize,
 }
@@ -137,7 +143,9 @@ pub fn evaluate_held_out(
     let unit = Uniform::new(0.0, 1.0).expect("valid range");
     let zeros = vec![0.0; arm.n_joints()];
     let (mut sum2, mut max, mut points) = (0.0, 0.0f64, 0);
-    let mut g = [0.0; 2];
+    let r = camera.outputs();
+    let mut g = vec![0.0; r];
+    let mut truth = vec![0.0; r];
     for _ in 0..count {
         let q: Vec<f64> = model
             .training_box
@@ -145,17 +153,17 @@ pub fn evaluate_held_out(
             .map(|[lo, hi]| lo + (hi - lo) * unit.sample(&mut rng))
             .collect();
         arm.set_state(&q, &zeros);
-        let Ok(truth) = camera.observe(arm) else {
+        if camera.observe(arm, &mut truth).is_err() {
             continue;
-        };
+        }
         model.predict_mean(&q, &mut g);
-        let (eu, ev) = (g[0] - truth[0], g[1] - truth[1]);
-        sum2 += eu * eu + ev * ev;
-        max = max.max(eu.hypot(ev));
+        let e2: f64 = g.iter().zip(&truth).map(|(a, b)| (a - b) * (a - b)).sum();
+        sum2 += e2;
+        max = max.max(e2.sqrt());
         points += 1;
     }
     HeldOutError {
-        rms: (sum2 / (2 * points.max(1)) as f64).sqrt(),
+        rms: (sum2 / (r * points.max(1)) as f64).sqrt(),
         max,
         points,
     }

@@ -15,6 +15,8 @@ pub enum PlantError {
         #[source]
         source: std::io::Error,
     },
+    #[error(transparent)]
+    File(crate::fsio::FsError),
     #[error("{path}: the file is empty")]
     Empty { path: PathBuf },
     #[error("{path}: the file is not UTF-8 text (binary file?)")]
@@ -123,6 +125,7 @@ impl PlantError {
     /// The file the error is about.
     pub fn path(&self) -> &std::path::Path {
         match self {
+            Self::File(e) => e.path(),
             Self::Unreadable { path, .. }
             | Self::Empty { path }
             | Self::NotText { path }

@@ -171,10 +171,11 @@ impl ArmModel {
 
 /// Reads and validates a URDF file.
 pub fn load_urdf(path: &Path) -> Result<ArmModel, PlantError> {
-    let bytes = std::fs::read(path).map_err(|source| PlantError::Unreadable {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let bytes =
+        crate::fsio::read_bounded(path, crate::fsio::MAX_URDF_BYTES).map_err(|e| match e {
+            crate::fsio::FsError::Read { path, source } => PlantError::Unreadable { path, source },
+            other => PlantError::File(other),
+        })?;
     let text = String::from_utf8(bytes).map_err(|_| PlantError::NotText {
         path: path.to_path_buf(),
     })?;

@@ -1,13 +1,18 @@
-//! The deterministic fault detector of the ECC paper (METHOD.md section 6), the baseline.
+//! The deterministic fault detector of the ECC paper (docs/method.md, "The detector"), the
+//! baseline.
 //!
-//! Per sensor group (encoders, tachometers, camera) the innovation r (readings against the
-//! prediction, before the tick's belief update) is compared with its healthy distribution,
-//! calibrated per time step from healthy runs of the same scenario:
-//! `d_M = sqrt((r - r_mean)' C^-1 (r - r_mean))`, alarm when `d_M > sqrt(n / alpha)` (the
-//! multivariate Chebyshev bound, n the group's dimension). Then isolation: the channel with the
-//! largest normalised residual in the alarmed group (default), or the whole group (the ECC
-//! paper's recovery). The alarm is latched: the first one isolates, later ticks only report
-//! distances. A missing reading neither raises nor clears an alarm.
+//! Per sensor group of the layout, the innovation r (readings against the prediction, before
+//! the tick's belief update) is compared with its healthy distribution, calibrated per time step
+//! from healthy runs of the same scenario: `d_M = sqrt((r - r_mean)' C^-1 (r - r_mean))` over the
+//! group's channels not already isolated, alarm when `d_M > sqrt(n / alpha)` (the multivariate
+//! Chebyshev bound, n those channels' count). Then isolation: the channel with the largest
+//! normalised residual in the alarmed group (default), or every such channel of the group (the
+//! ECC paper's recovery).
+//!
+//! A run may raise many alarms: every group is tested every tick, and an isolated channel is
+//! re-admitted once its own normalised innovation has stayed within the one-dimensional bound
+//! `sqrt(1 / alpha)` for `rearm_ticks` ticks (0: never; the ECC paper latches). A missing
+//! reading neither raises nor clears an alarm.
 
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
@@ -24,8 +29,12 @@ pub enum Isolation {
     Group,
 }
 
+/// Largest number of alarms a run keeps (later ones are counted, not kept).
+pub const MAX_ALARMS: usize = 10_000;
+
 /// Detector settings: alpha = 0.01 (Chebyshev false-alarm bound), channel isolation, moments
-/// pooled over +-5 ticks around each step.
+/// pooled over +-5 ticks around each step, an isolated channel re-admitted after 1000 quiet
+/// ticks.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct DetectorConfig {
@@ -35,6 +44,9 @@ pub struct DetectorConfig {
     pub pool_ticks: usize,
     /// Number of healthy runs for calibration.
     pub calibration_runs: usize,
+    /// Ticks an isolated channel's innovation must stay within sqrt(1 / alpha) of its healthy
+    /// spread before it is re-admitted; 0 never re-admits (the ECC paper's latch).
+    pub rearm_ticks: u64,
 }
 
 impl Default for DetectorConfig {
@@ -44,17 +56,30 @@ impl Default for DetectorConfig {
             isolation: Isolation::Channel,
             pool_ticks: 5,
             calibration_runs: 50,
+            rearm_ticks: 1000,
         }
     }
 }
+
+/// Most healthy calibration runs.
+pub const MAX_CALIBRATION_RUNS: usize = 10_000;
 
 impl DetectorConfig {
     pub fn validate(&self) -> Result<(), (&'static str, String)> {
         if !(self.alpha > 0.0 && self.alpha < 1.0) {
             return Err(("alpha", "must be in (0, 1)".into()));
         }
-        if self.calibration_runs < 2 {
-            return Err(("calibration_runs", "must be >= 2".into()));
+        if !(2..=MAX_CALIBRATION_RUNS).contains(&self.calibration_runs) {
+            return Err((
+                "calibration_runs",
+                format!("must be in 2..={MAX_CALIBRATION_RUNS}"),
+            ));
+        }
+        if self.pool_ticks > 10_000 {
+            return Err(("pool_ticks", "must be <= 10000".into()));
+        }
+        if self.rearm_ticks > 1_000_000_000 {
+            return Err(("rearm_ticks", "must be <= 1e9".into()));
         }
         Ok(())
     }
@@ -64,7 +89,7 @@ impl DetectorConfig {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct GroupCalibration {
-    /// `enc`, `tach` or `cam`.
+    /// The group's short name (`enc`, `tach`, `cam`).
     pub group: String,
     /// Channel indices of the group (in [`ChannelLayout`] order).
     pub channels: Vec<usize>,
@@ -99,9 +124,23 @@ pub struct CalibrationAccumulator {
     outer: Vec<Vec<f64>>,
 }
 
+/// Numbers a calibration of `ticks` ticks holds for `layout` (its memory, in f64s, is about
+/// three times that while it is accumulated).
+pub fn calibration_size(layout: &ChannelLayout, ticks: usize) -> usize {
+    layout
+        .groups()
+        .iter()
+        .map(|&g| {
+            let d = layout.group_range(g).len();
+            ticks.saturating_mul(d + d * d)
+        })
+        .fold(0usize, usize::saturating_add)
+}
+
 impl CalibrationAccumulator {
     pub fn new(layout: ChannelLayout, ticks: usize) -> Self {
-        let dims: Vec<usize> = SensorGroup::ALL
+        let dims: Vec<usize> = layout
+            .groups()
             .iter()
             .map(|&g| layout.group_range(g).len())
             .collect();
@@ -120,7 +159,7 @@ impl CalibrationAccumulator {
         if tick >= self.ticks {
             return;
         }
-        for (gi, &group) in SensorGroup::ALL.iter().enumerate() {
+        for (gi, &group) in self.layout.groups().iter().enumerate() {
             let range = self.layout.group_range(group);
             let dim = range.len();
             if range.clone().any(|c| innovations[c].is_none()) {
@@ -162,7 +201,9 @@ impl CalibrationAccumulator {
     /// Per-tick moments pooled over +-`pool_ticks`.
     pub fn finish(&self, dt: f64, pool_ticks: usize, fingerprint: String) -> Calibration {
         let ticks = self.ticks;
-        let groups = SensorGroup::ALL
+        let groups = self
+            .layout
+            .groups()
             .iter()
             .enumerate()
             .map(|(gi, &group)| {
@@ -240,30 +281,97 @@ impl Calibration {
     /// Reads a calibration from JSON; checks its shape.
     pub fn from_json(text: &str) -> Result<Self, String> {
         let c: Calibration = serde_json::from_str(text).map_err(|e| e.to_string())?;
+        if c.groups.is_empty() {
+            return Err("it has no sensor groups".into());
+        }
         for g in &c.groups {
             let dim = g.channels.len();
-            if g.mean.len() != c.ticks * dim || g.covariance.len() != c.ticks * dim * dim {
+            if dim == 0 {
+                return Err(format!("group {} has no channels", g.group));
+            }
+            let expected = c.ticks.checked_mul(dim).and_then(|v| v.checked_mul(dim));
+            if c.ticks.checked_mul(dim) != Some(g.mean.len())
+                || expected != Some(g.covariance.len())
+            {
                 return Err(format!("group {} has the wrong number of values", g.group));
             }
-        }
-        if c.groups.len() != 3 {
-            return Err("expected the enc, tach and cam groups".into());
+            if !g.mean.iter().chain(&g.covariance).all(|v| v.is_finite()) {
+                return Err(format!("group {} holds a non-finite value", g.group));
+            }
         }
         Ok(c)
     }
+
+    /// Whether the calibration's groups are `layout`'s.
+    pub fn matches(&self, layout: &ChannelLayout) -> bool {
+        self.groups.len() == layout.groups().len()
+            && self.groups.iter().zip(layout.groups()).all(|(g, &lg)| {
+                g.group == lg.name() && g.channels == layout.group_range(lg).collect::<Vec<_>>()
+            })
+    }
+
+    /// The first tick whose covariance of some group is not positive definite although it has
+    /// data, with the group's name (a calibration that would silently disable the detector).
+    pub fn degenerate_tick(&self) -> Option<(usize, String)> {
+        for g in &self.groups {
+            let dim = g.channels.len();
+            for t in 0..self.ticks {
+                let cov = &g.covariance[t * dim * dim..(t + 1) * dim * dim];
+                if cov.iter().all(|v| *v == 0.0) {
+                    // No data at this tick (fewer than two samples): not tested, by design.
+                    if g.mean[t * dim..(t + 1) * dim].iter().all(|v| *v == 0.0) {
+                        continue;
+                    }
+                    return Some((t, g.group.clone()));
+                }
+                let c = DMatrix::from_row_slice(dim, dim, cov);
+                if c.cholesky().is_none() {
+                    return Some((t, g.group.clone()));
+                }
+            }
+        }
+        None
+    }
+}
+
+/// One alarm: when, in which group, the channels it isolated, and when they were re-admitted.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Alarm {
+    pub tick: u64,
+    pub group: SensorGroup,
+    pub channels: Vec<usize>,
+    /// When the last of its channels was re-admitted (`None`: still isolated).
+    pub cleared: Option<u64>,
 }
 
 /// The detector's state after a tick.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Detection {
-    /// The tick of the (latched) alarm.
-    pub fired_tick: Option<u64>,
-    /// The alarmed group.
-    pub group: Option<SensorGroup>,
-    /// Channels isolated as faulty.
+    /// Every alarm so far, in order (at most [`MAX_ALARMS`]).
+    pub alarms: Vec<Alarm>,
+    /// Alarms raised beyond [`MAX_ALARMS`] (counted, not kept).
+    pub dropped_alarms: u64,
+    /// Channels isolated now, sorted.
     pub isolated: Vec<usize>,
-    /// d_M / threshold per group in [`SensorGroup::ALL`] order (None: not evaluated this tick).
-    pub normalised_distance: [Option<f64>; 3],
+    /// d_M / threshold per group of the layout (None: not evaluated this tick).
+    pub normalised_distance: Vec<Option<f64>>,
+}
+
+impl Detection {
+    /// The first alarm of the run.
+    pub fn first(&self) -> Option<&Alarm> {
+        self.alarms.first()
+    }
+
+    /// Whether any alarm has been raised.
+    pub fn fired(&self) -> bool {
+        !self.alarms.is_empty() || self.dropped_alarms > 0
+    }
+
+    /// Whether a channel is isolated now.
+    pub fn active(&self) -> bool {
+        !self.isolated.is_empty()
+    }
 }
 
 /// Per-tick precomputed inverse covariances of one group.
@@ -271,8 +379,8 @@ struct GroupTest {
     group: SensorGroup,
     channels: Vec<usize>,
     dim: usize,
-    threshold: f64,
     mean: Vec<f64>,
+    covariance: Vec<f64>,
     /// Inverse covariance per tick (None where the calibration had no data).
     inverse: Vec<Option<DMatrix<f64>>>,
     std: Vec<f64>,
@@ -281,18 +389,25 @@ struct GroupTest {
 /// The detector, ready to run.
 pub struct Detector {
     tests: Vec<GroupTest>,
+    alpha: f64,
     isolation: Isolation,
+    rearm_ticks: u64,
     state: Detection,
+    /// Per channel: consecutive quiet ticks while isolated.
+    quiet: Vec<u64>,
+    /// Per channel: the alarm that isolated it.
+    isolated_by: Vec<Option<usize>>,
     scratch: DVector<f64>,
 }
 
 impl Detector {
-    pub fn new(calibration: &Calibration, config: &DetectorConfig) -> Self {
+    /// A detector on a calibration whose groups match the layout ([`Calibration::matches`]).
+    pub fn new(calibration: &Calibration, config: &DetectorConfig, layout: &ChannelLayout) -> Self {
         let tests = calibration
             .groups
             .iter()
-            .zip(SensorGroup::ALL)
-            .map(|(g, group)| {
+            .zip(layout.groups())
+            .map(|(g, &group)| {
                 let dim = g.channels.len();
                 let mut inverse = Vec::with_capacity(calibration.ticks);
                 let mut std = vec![0.0; calibration.ticks * dim];
@@ -318,8 +433,8 @@ impl Detector {
                     group,
                     channels: g.channels.clone(),
                     dim,
-                    threshold: (dim as f64 / config.alpha).sqrt(),
                     mean: g.mean.clone(),
+                    covariance: g.covariance.clone(),
                     inverse,
                     std,
                 }
@@ -327,8 +442,15 @@ impl Detector {
             .collect();
         Self {
             tests,
+            alpha: config.alpha,
             isolation: config.isolation,
-            state: Detection::default(),
+            rearm_ticks: config.rearm_ticks,
+            state: Detection {
+                normalised_distance: vec![None; layout.groups().len()],
+                ..Detection::default()
+            },
+            quiet: vec![0; layout.len()],
+            isolated_by: vec![None; layout.len()],
             scratch: DVector::zeros(0),
         }
     }
@@ -341,8 +463,10 @@ impl Detector {
     /// Tests this tick's innovations (`None`: missing).
     pub fn check(&mut self, tick: u64, innovations: &[Option<f64>]) -> &Detection {
         let t = tick as usize;
-        for (gi, test) in self.tests.iter().enumerate() {
+        let one_d_bound = (1.0 / self.alpha).sqrt();
+        for gi in 0..self.tests.len() {
             self.state.normalised_distance[gi] = None;
+            let test = &self.tests[gi];
             let Some(Some(inv)) = test.inverse.get(t) else {
                 continue;
             };
@@ -356,16 +480,63 @@ impl Detector {
             for (j, &c) in test.channels.iter().enumerate() {
                 self.scratch[j] = innovations[c].unwrap_or(0.0) - test.mean[t * dim + j];
             }
-            let d2 = (inv * &self.scratch).dot(&self.scratch);
+            // Re-admission of the group's isolated channels.
+            let mut readmitted = false;
+            for (j, &c) in test.channels.iter().enumerate() {
+                let Some(alarm) = self.isolated_by[c] else {
+                    continue;
+                };
+                let z = self.scratch[j].abs() / test.std[t * dim + j];
+                self.quiet[c] = if z <= one_d_bound {
+                    self.quiet[c] + 1
+                } else {
+                    0
+                };
+                if self.rearm_ticks > 0 && self.quiet[c] >= self.rearm_ticks {
+                    self.isolated_by[c] = None;
+                    self.quiet[c] = 0;
+                    readmitted = true;
+                    let still = self.isolated_by.contains(&Some(alarm));
+                    if !still && let Some(a) = self.state.alarms.get_mut(alarm) {
+                        a.cleared = Some(tick);
+                    }
+                }
+            }
+            if readmitted {
+                self.state
+                    .isolated
+                    .retain(|&c| self.isolated_by[c].is_some());
+            }
+            // The test over the channels not isolated.
+            let active: Vec<usize> = (0..dim)
+                .filter(|&j| self.isolated_by[test.channels[j]].is_none())
+                .collect();
+            if active.is_empty() {
+                continue;
+            }
+            let d2 = if active.len() == dim {
+                (inv * &self.scratch).dot(&self.scratch)
+            } else {
+                let k = active.len();
+                let sub = DMatrix::from_fn(k, k, |a, b| {
+                    test.covariance[(t * dim + active[a]) * dim + active[b]]
+                });
+                let x = DVector::from_fn(k, |a, _| self.scratch[active[a]]);
+                match sub.cholesky() {
+                    Some(ch) => ch.solve(&x).dot(&x),
+                    None => continue,
+                }
+            };
+            let threshold = (active.len() as f64 / self.alpha).sqrt();
             let d = d2.max(0.0).sqrt();
-            self.state.normalised_distance[gi] = Some(d / test.threshold);
-            if self.state.fired_tick.is_none() && d > test.threshold {
-                self.state.fired_tick = Some(tick);
-                self.state.group = Some(test.group);
-                self.state.isolated = match self.isolation {
-                    Isolation::Group => test.channels.clone(),
+            self.state.normalised_distance[gi] = Some(d / threshold);
+            if d > threshold {
+                let channels = match self.isolation {
+                    Isolation::Group => active.iter().map(|&j| test.channels[j]).collect(),
                     Isolation::Channel => {
-                        let worst = (0..dim)
+                        let worst = active
+                            .iter()
+                            .copied()
                             .max_by(|&a, &b| {
                                 let na = self.scratch[a].abs() / test.std[t * dim + a];
                                 let nb = self.scratch[b].abs() / test.std[t * dim + b];
@@ -375,22 +546,50 @@ impl Detector {
                         vec![test.channels[worst]]
                     }
                 };
+                let group = test.group;
+                self.raise(tick, group, channels);
             }
         }
         &self.state
+    }
+
+    fn raise(&mut self, tick: u64, group: SensorGroup, channels: Vec<usize>) {
+        let index = self.state.alarms.len();
+        for &c in &channels {
+            self.isolated_by[c] = Some(index);
+            self.quiet[c] = 0;
+            if let Err(pos) = self.state.isolated.binary_search(&c) {
+                self.state.isolated.insert(pos, c);
+            }
+        }
+        if index < MAX_ALARMS {
+            self.state.alarms.push(Alarm {
+                tick,
+                group,
+                channels,
+                cleared: None,
+            });
+        } else {
+            self.state.dropped_alarms += 1;
+        }
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::sensors::CameraModel;
 
-    /// Two-channel healthy runs: independent N(0, 1) innovations, 200 runs x 100 ticks.
+    fn layout() -> ChannelLayout {
+        ChannelLayout::new(1, CameraModel::Pinhole)
+    }
+
+    /// One-joint healthy runs: independent N(0, 1) innovations, 200 runs x 100 ticks.
     fn calibration() -> Calibration {
         use rand::SeedableRng;
         use rand_distr::{Distribution, StandardNormal};
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
-        let layout = ChannelLayout::new(1);
+        let layout = layout();
         let runs: Vec<Vec<Vec<Option<f64>>>> = (0..200)
             .map(|_| {
                 (0..100)
@@ -405,6 +604,7 @@ mod tests {
         Calibration::from_runs(layout, &runs, 1e-3, 2, "test".into())
     }
 
+    /// The calibrated per-tick covariance against the generator's, a Monte Carlo check.
     #[test]
     fn calibrated_moments_match_the_generator() {
         let cal = calibration();
@@ -421,42 +621,74 @@ mod tests {
                 }
             }
         }
+        assert!(cal.matches(&layout()));
+        assert_eq!(cal.degenerate_tick(), None);
+    }
+
+    fn latched() -> DetectorConfig {
+        DetectorConfig {
+            rearm_ticks: 0,
+            ..DetectorConfig::default()
+        }
     }
 
     #[test]
-    fn an_outlier_fires_and_isolates_its_channel_and_the_alarm_latches() {
+    fn an_outlier_fires_and_isolates_its_channel_and_other_groups_still_alarm() {
         let cal = calibration();
-        let mut det = Detector::new(&cal, &DetectorConfig::default());
+        let mut det = Detector::new(&cal, &latched(), &layout());
         // Encoder (channel 0) at 3 sigma: below sqrt(1 / 0.01) = 10.
         let d = det.check(10, &[Some(3.0), Some(0.0), Some(0.0), Some(0.0)]);
-        assert!(d.fired_tick.is_none());
+        assert!(!d.fired());
         // Camera u (channel 2) at 20 sigma: fires in the camera group, isolates channel 2.
         let d = det
             .check(11, &[Some(0.0), Some(0.0), Some(20.0), Some(0.5)])
             .clone();
-        assert_eq!(d.fired_tick, Some(11));
-        assert_eq!(d.group, Some(SensorGroup::Camera));
+        assert_eq!(d.first().map(|a| a.tick), Some(11));
+        assert_eq!(d.first().map(|a| a.group), Some(SensorGroup::Camera));
         assert_eq!(d.isolated, vec![2]);
-        // Latched: a later, larger alarm elsewhere does not change it.
-        let d = det.check(12, &[Some(50.0), Some(0.0), Some(0.0), Some(0.0)]);
-        assert_eq!(d.fired_tick, Some(11));
-        assert_eq!(d.isolated, vec![2]);
+        // The camera's other channel is tested alone; a later alarm in another group is raised.
+        let d = det.check(12, &[Some(50.0), Some(0.0), Some(20.0), Some(0.0)]);
+        assert_eq!(d.alarms.len(), 2);
+        assert_eq!(d.alarms[1].group, SensorGroup::Encoders);
+        assert_eq!(d.isolated, vec![0, 2]);
+    }
+
+    #[test]
+    fn an_isolated_channel_is_readmitted_after_quiet_ticks_and_can_alarm_again() {
+        let cal = calibration();
+        let config = DetectorConfig {
+            rearm_ticks: 5,
+            ..DetectorConfig::default()
+        };
+        let mut det = Detector::new(&cal, &config, &layout());
+        det.check(10, &[Some(40.0), Some(0.0), Some(0.0), Some(0.0)]);
+        assert_eq!(det.state().isolated, vec![0]);
+        for t in 11..15 {
+            det.check(t, &[Some(0.5), Some(0.0), Some(0.0), Some(0.0)]);
+            assert_eq!(det.state().isolated, vec![0], "tick {t}");
+        }
+        det.check(15, &[Some(0.5), Some(0.0), Some(0.0), Some(0.0)]);
+        assert!(det.state().isolated.is_empty());
+        assert_eq!(det.state().alarms[0].cleared, Some(15));
+        det.check(20, &[Some(40.0), Some(0.0), Some(0.0), Some(0.0)]);
+        assert_eq!(det.state().alarms.len(), 2);
+        assert_eq!(det.state().isolated, vec![0]);
     }
 
     #[test]
     fn missing_readings_neither_raise_nor_clear() {
         let cal = calibration();
-        let mut det = Detector::new(&cal, &DetectorConfig::default());
+        let mut det = Detector::new(&cal, &latched(), &layout());
         let d = det.check(5, &[None, Some(0.0), Some(0.0), Some(0.0)]);
-        assert!(d.fired_tick.is_none());
+        assert!(!d.fired());
         assert_eq!(d.normalised_distance[0], None);
         let config = DetectorConfig {
             isolation: Isolation::Group,
-            ..DetectorConfig::default()
+            ..latched()
         };
-        let mut det = Detector::new(&cal, &config);
+        let mut det = Detector::new(&cal, &config, &layout());
         det.check(6, &[Some(0.0), Some(0.0), Some(40.0), Some(0.0)]);
         let d = det.check(7, &[Some(0.0), Some(0.0), None, None]);
-        assert_eq!(d.isolated, vec![2, 3], "group isolation, still latched");
+        assert_eq!(d.isolated, vec![2, 3], "group isolation, still isolated");
     }
 }

@@ -1,59 +1,53 @@
-//! Reports: files written from what a run produced (CSV, JSON, SVG plots, tables).
+//! Reports: files written from what runs produced (CSV, JSON, SVG plots, tables).
 //!
-//! Every file is written atomically: into a temporary file beside the target, then renamed, so a
+//! Every file is written atomically (a temporary file beside the target, then renamed), and
+//! every output folder is staged and moved into place whole ([`crate::fsio::Staged`]), so a
 //! failure never leaves a half-written output.
 
 pub mod plots;
 pub mod run_files;
 pub mod table_files;
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
-/// Writing an output failed (the disk, not the input, is at fault).
+use crate::fsio::FsError;
+use crate::scenario::ScenarioError;
+
+pub use crate::scenario::trajectory::fmt_f64;
+
+/// Writing a report failed.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum ReportError {
-    #[error("{path}: cannot write")]
-    Write {
-        path: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
+    #[error(transparent)]
+    File(#[from] FsError),
     #[error("{path}: cannot draw the plot: {message}")]
     Plot { path: PathBuf, message: String },
+    /// The run itself failed (bad input found while running).
+    #[error(transparent)]
+    Scenario(Box<ScenarioError>),
 }
 
-/// Writes `bytes` to `path` atomically (temporary file in the same folder, then rename).
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), ReportError> {
-    let err = |source| ReportError::Write {
-        path: path.to_path_buf(),
-        source,
-    };
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let file_name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "out".into());
-    let tmp = dir.join(format!(".{file_name}.tmp{}", std::process::id()));
-    let result = (|| {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
+impl From<ScenarioError> for ReportError {
+    fn from(e: ScenarioError) -> Self {
+        Self::Scenario(Box::new(e))
     }
-    result.map_err(err)
 }
 
-/// Formats an f64 so that it reads back bit for bit (Rust's shortest round-trip form).
-pub fn fmt_f64(v: f64) -> String {
-    format!("{v}")
+impl ReportError {
+    /// Whether the input is at fault (as opposed to the disk or aift).
+    pub fn is_input_error(&self) -> bool {
+        match self {
+            Self::File(e) => e.is_input_error(),
+            Self::Plot { .. } => false,
+            Self::Scenario(_) => true,
+        }
+    }
+}
+
+/// Writes `bytes` to `path` atomically.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), ReportError> {
+    Ok(crate::fsio::write_atomic(path, bytes)?)
 }
 
 /// Renders rows of numbers as CSV text with a header; numbers in round-trip form.
@@ -61,15 +55,7 @@ pub fn csv_text<'a>(header: &[String], rows: impl Iterator<Item = &'a [f64]>) ->
     let mut out = header.join(",");
     out.push('\n');
     for row in rows {
-        let mut first = true;
-        for v in row {
-            if !first {
-                out.push(',');
-            }
-            first = false;
-            out.push_str(&fmt_f64(*v));
-        }
-        out.push('\n');
+        crate::scenario::trajectory::format_csv_row(row, &mut out);
     }
     out
 }

@@ -262,7 +262,12 @@ pub fn detector(
     fault: Option<f64>,
 ) -> Result<(), ReportError> {
     let t = rec.series("t").unwrap_or_default();
-    let series: Vec<(String, Vec<f64>, usize, bool)> = ["enc", "tach", "cam"]
+    let groups: Vec<&str> = rec
+        .header
+        .iter()
+        .filter_map(|h| h.strip_prefix("d_"))
+        .collect();
+    let series: Vec<(String, Vec<f64>, usize, bool)> = groups
         .iter()
         .enumerate()
         .map(|(i, g)| {

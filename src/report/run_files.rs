@@ -1,14 +1,19 @@
-//! The files of one run: trajectory, summary, the scenario as run, plots, and what is needed to
-//! repeat the run from its folder alone (URDF, GP model, detector calibration).
+//! The files of one run: trajectory (streamed while the run goes), summary, the scenario as run,
+//! plots, and what is needed to repeat the run from its folder alone (URDF, GP model, detector
+//! calibration). [`run_into`] does all of it into a staged folder and moves the folder into
+//! place only when every file is written.
 
 use std::path::{Path, PathBuf};
 
 use serde_json::json;
 
-use super::{ReportError, csv_text, plots, write_atomic};
+use super::{ReportError, plots, write_atomic};
+use crate::fsio::{self, Staged};
 use crate::precision::Calibration;
-use crate::scenario::{Method, Outcome, RunResult, RunSetup, TrajectoryRecorder};
-use crate::sensors::ChannelLayout;
+use crate::scenario::{
+    self, Method, Observers, Outcome, RunResult, RunSetup, TrajectoryRecorder, TrajectorySchema,
+    TrajectoryWriter,
+};
 
 /// Names of the files a run writes.
 pub const TRAJECTORY: &str = "trajectory.csv";
@@ -22,10 +27,15 @@ pub const PLOT_HEALTH: &str = "health.svg";
 pub const PLOT_DETECTOR: &str = "detector.svg";
 pub const PLOT_FREE_ENERGY: &str = "free_energy.svg";
 
+/// Rows the plots are drawn from (the run is decimated to at most this many as it goes).
+pub const PLOT_ROWS: usize = 4000;
+
+/// Version of summary.json's layout.
+pub const SUMMARY_FORMAT: u32 = 2;
+
 /// The summary of a run as JSON.
 pub fn summary_json(setup: &RunSetup, result: &RunResult) -> serde_json::Value {
-    let layout = ChannelLayout::new(setup.model.joints.len());
-    let channels: Vec<String> = layout.channels().map(|c| c.name()).collect();
+    let channels = &result.channels;
     let per_channel = |v: &[f64]| -> serde_json::Map<String, serde_json::Value> {
         channels
             .iter()
@@ -33,19 +43,23 @@ pub fn summary_json(setup: &RunSetup, result: &RunResult) -> serde_json::Value {
             .map(|(c, x)| (c.clone(), json!(x)))
             .collect()
     };
-    let diverged_at = match &result.outcome {
-        Outcome::Diverged { tick, reason } => {
-            json!({"t": *tick as f64 * setup.scenario().dt, "reason": reason})
+    let dt = setup.scenario().dt;
+    let ended = match &result.outcome {
+        Outcome::Diverged { tick, reason } | Outcome::Stopped { tick, reason } => {
+            json!({"t": *tick as f64 * dt, "reason": reason})
         }
         Outcome::Completed => serde_json::Value::Null,
     };
+    let layout = setup.layout;
+    let names = |cs: &[usize]| cs.iter().map(|&c| layout.name(c)).collect::<Vec<_>>();
     json!({
+        "format_version": SUMMARY_FORMAT,
         "aift_version": env!("CARGO_PKG_VERSION"),
         "scenario": setup.scenario().name,
-        "method": result.method.name(),
+        "method": result.method,
         "seed": result.seed,
         "outcome": result.outcome.name(),
-        "diverged": diverged_at,
+        "diverged": ended,
         "ticks": result.ticks_run,
         "mse_per_joint": result.mse_per_joint,
         "mse_faulty": result.mse_faulty,
@@ -59,6 +73,22 @@ pub fn summary_json(setup: &RunSetup, result: &RunResult) -> serde_json::Value {
         "isolated_channel": result.isolated_channel,
         "isolation_correct": result.isolation_correct,
         "false_alarm": result.false_alarm,
+        "false_alarms": result.false_alarms,
+        "detections": result.detections.iter().map(|d| json!({
+            "t": d.t, "channels": names(&d.channels),
+        })).collect::<Vec<_>>(),
+        "faults": result.faults.iter().map(|f| json!({
+            "channel": f.label,
+            "kind": f.kind,
+            "start": f.start,
+            "end": f.end,
+            "joints": f.joints.iter().map(|j| j + 1).collect::<Vec<_>>(),
+            "detected_at": f.detected_at,
+            "delay": f.delay,
+            "isolated": f.isolated,
+            "isolation_correct": f.isolation_correct,
+            "mse_during": f.mse_during,
+        })).collect::<Vec<_>>(),
         "final_health": per_channel(&result.final_health),
         "min_health_last_5s": per_channel(&result.min_health_last_5s),
         "ticks_per_second": result.ticks_per_second(),
@@ -87,21 +117,19 @@ pub fn resolved_scenario(
     header + &toml::to_string_pretty(&s).expect("a scenario always serialises")
 }
 
-/// Writes every file of a run into `dir` (which must exist).
+/// Writes every file of a run but the trajectory into `dir` (which must exist); `plots` holds
+/// the (decimated) rows the plots are drawn from.
 pub fn write_run(
     dir: &Path,
     setup: &RunSetup,
+    method: Method,
     result: &RunResult,
-    recorder: &TrajectoryRecorder,
+    plots_rows: &TrajectoryRecorder,
     calibration: Option<&Calibration>,
 ) -> Result<(), ReportError> {
     let urdf = setup
         .loaded
-        .read_relative(&setup.scenario().robot.urdf)
-        .map_err(|source| ReportError::Write {
-            path: dir.join(ROBOT),
-            source,
-        })?
+        .read_relative(&setup.scenario().robot.urdf, fsio::MAX_URDF_BYTES)?
         .1;
     write_atomic(&dir.join(ROBOT), urdf.as_bytes())?;
     write_atomic(&dir.join(GP_MODEL), setup.gp.to_json().as_bytes())?;
@@ -110,23 +138,61 @@ pub fn write_run(
     }
     write_atomic(
         &dir.join(RESOLVED),
-        resolved_scenario(setup, result.method, result.seed, calibration.is_some()).as_bytes(),
-    )?;
-    write_atomic(
-        &dir.join(TRAJECTORY),
-        csv_text(&recorder.header, recorder.rows.iter().map(Vec::as_slice)).as_bytes(),
+        resolved_scenario(setup, method, result.seed, calibration.is_some()).as_bytes(),
     )?;
     let fault = setup
         .faults
         .iter()
         .map(|f| f.start)
         .fold(None, |a: Option<f64>, s| Some(a.map_or(s, |a| a.min(s))));
-    plots::joint_angles(&dir.join(PLOT_JOINTS), recorder, fault)?;
-    plots::health(&dir.join(PLOT_HEALTH), recorder, fault)?;
-    plots::detector(&dir.join(PLOT_DETECTOR), recorder, fault)?;
-    plots::free_energy(&dir.join(PLOT_FREE_ENERGY), recorder, fault)?;
-    // The summary last: its presence marks a complete run folder.
+    plots::joint_angles(&dir.join(PLOT_JOINTS), plots_rows, fault)?;
+    plots::health(&dir.join(PLOT_HEALTH), plots_rows, fault)?;
+    plots::detector(&dir.join(PLOT_DETECTOR), plots_rows, fault)?;
+    plots::free_energy(&dir.join(PLOT_FREE_ENERGY), plots_rows, fault)?;
     let summary = serde_json::to_string_pretty(&summary_json(setup, result))
         .expect("a summary always serialises");
     write_atomic(&dir.join(SUMMARY), summary.as_bytes())
+}
+
+/// Runs `method` with `seed` and writes the whole run folder into `staged`, which is moved into
+/// place once every file is written. The trajectory streams to its file while the run goes
+/// (every `record_every`-th tick), so memory does not grow with the run.
+pub fn run_into(
+    staged: Staged,
+    setup: &RunSetup,
+    method: Method,
+    seed: u64,
+    calibration: Option<&Calibration>,
+) -> Result<RunResult, ReportError> {
+    let dir = staged.path().to_path_buf();
+    let path = dir.join(TRAJECTORY);
+    let file = std::fs::File::create(&path).map_err(|source| fsio::FsError::Write {
+        path: path.clone(),
+        source,
+    })?;
+    let mut writer = TrajectoryWriter::new(
+        TrajectorySchema::new(&setup.layout),
+        file,
+        setup.scenario().record_every,
+    );
+    let mut plot_rows = TrajectoryRecorder::bounded(&setup.layout, PLOT_ROWS);
+    let result = scenario::run(
+        setup,
+        method,
+        seed,
+        calibration,
+        &mut Observers(vec![&mut writer, &mut plot_rows]),
+    )?;
+    let write_err = |source| fsio::FsError::Write {
+        path: path.clone(),
+        source,
+    };
+    writer
+        .finish()
+        .map_err(write_err)?
+        .sync_all()
+        .map_err(write_err)?;
+    write_run(&dir, setup, method, &result, &plot_rows, calibration)?;
+    staged.commit()?;
+    Ok(result)
 }

@@ -9,6 +9,9 @@ use super::{ReportError, write_atomic};
 use crate::scenario::table::Table;
 use crate::scenario::{Method, RunSetup};
 
+/// Version of table.json's layout.
+pub const TABLE_FORMAT: u32 = 2;
+
 /// Writes the four table files into `dir`.
 pub fn write_table(dir: &Path, setup: &RunSetup, table: &Table) -> Result<(), ReportError> {
     write_atomic(&dir.join("runs.csv"), runs_csv(table).as_bytes())?;
@@ -65,7 +68,7 @@ pub fn runs_csv(table: &Table) -> String {
     for r in &table.runs {
         out += &format!(
             "{},{},{},{},{}",
-            r.method.name(),
+            r.method,
             r.seed,
             r.outcome.name(),
             opt(r.mse_faulty),
@@ -92,6 +95,7 @@ pub fn runs_csv(table: &Table) -> String {
 /// table.json: the rows plus the scenario and seeds.
 pub fn table_json(setup: &RunSetup, table: &Table) -> serde_json::Value {
     json!({
+        "format_version": TABLE_FORMAT,
         "aift_version": env!("CARGO_PKG_VERSION"),
         "scenario": setup.scenario().name,
         "seeds": table.seeds,
@@ -121,10 +125,11 @@ fn sci(v: Option<f64>) -> String {
 /// Whether the scenario is the paper's experiment (a single encoder freeze), the only one its
 /// Table 1 speaks of.
 pub fn is_paper_experiment(setup: &RunSetup) -> bool {
-    use crate::sensors::{Channel, FaultKind, FaultTarget};
+    use crate::sensors::{Channel, FaultKind};
     matches!(
         setup.faults.as_slice(),
-        [f] if f.kind == FaultKind::Freeze && matches!(f.target, FaultTarget::One(Channel::Encoder(_)))
+        [f] if f.kind == FaultKind::Freeze {}
+            && matches!(f.channels.as_slice(), [c] if matches!(setup.layout.channel(*c), Channel::Encoder(_)))
     )
 }
 

@@ -5,10 +5,11 @@ use std::hint::black_box;
 use std::time::Instant;
 
 use super::{Method, NoObserver, RunSetup, ScenarioError, run};
+use crate::estimation::uaic::Uaic;
+use crate::estimation::{Estimate, Estimator, EstimatorInput};
 use crate::plant::Arm;
-use crate::precision::{Detection, Gradient, LearnerInput, PrecisionLearner};
-use crate::sensors::{Camera, ChannelLayout, Readings, SensorSuite};
-use crate::uaic::Controller;
+use crate::precision::{Gradient, PrecisionInput, PrecisionMethod};
+use crate::sensors::{Camera, Readings, SensorSuite};
 
 /// One measured figure.
 #[derive(Clone, Debug, PartialEq)]
@@ -28,7 +29,7 @@ pub fn bench(setup: &RunSetup, ticks: u64) -> Result<Vec<Figure>, ScenarioError>
 
     let mut arm = Arm::new((*setup.model).clone(), setup.arm_options())?;
     let n = arm.n_joints();
-    let layout = ChannelLayout::new(n);
+    let layout = setup.layout;
     let qd0 = sc.initial.qd.clone().unwrap_or_else(|| vec![0.0; n]);
     let target = sc.targets[0].q.clone();
 
@@ -51,7 +52,7 @@ pub fn bench(setup: &RunSetup, ticks: u64) -> Result<Vec<Figure>, ScenarioError>
         dt,
         sc.seed,
     );
-    let mut readings = Readings::missing(layout);
+    let mut readings = Readings::missing(&layout);
     let start = Instant::now();
     for k in 0..ticks {
         sensors.read(&arm, k, &mut readings);
@@ -59,8 +60,9 @@ pub fn bench(setup: &RunSetup, ticks: u64) -> Result<Vec<Figure>, ScenarioError>
     let sensors_us = per_tick(start);
 
     // GP: mean and Jacobian.
-    let mut g = [0.0; 2];
-    let mut jac = vec![0.0; 2 * n];
+    let r = layout.camera_outputs();
+    let mut g = vec![0.0; r];
+    let mut jac = vec![0.0; r * n];
     let start = Instant::now();
     for _ in 0..ticks {
         setup.gp.predict(black_box(&target), &mut g, &mut jac);
@@ -68,11 +70,19 @@ pub fn bench(setup: &RunSetup, ticks: u64) -> Result<Vec<Figure>, ScenarioError>
     let gp_us = per_tick(start);
 
     // Controller: one belief update (GP included) and f*, on fixed readings.
-    let nominal: Vec<f64> = sensors.sigmas().iter().map(|s| 1.0 / (s * s)).collect();
-    let mut controller = Controller::new(sc.controller.clone(), layout, setup.gp.clone(), dt);
+    let nominal: Vec<f64> = super::runner::nominal_precisions(sensors.sigmas());
+    let mut belief = Uaic::new(sc.controller.uaic(), layout, setup.gp.clone(), dt);
+    let mut control = crate::control::Control::new(&sc.controller.control());
+    let zeros = vec![0.0; n];
     let start = Instant::now();
-    for _ in 0..ticks {
-        controller.step(black_box(&readings), &target, &nominal);
+    for k in 0..ticks {
+        belief.update(&EstimatorInput {
+            tick: k,
+            readings: black_box(&readings),
+            precisions: &nominal,
+            applied_torques: &zeros,
+        });
+        control.step(belief.mu(), belief.mu_p(), &target, dt);
     }
     let controller_us = per_tick(start);
 
@@ -81,20 +91,22 @@ pub fn bench(setup: &RunSetup, ticks: u64) -> Result<Vec<Figure>, ScenarioError>
         &nominal,
         sc.precision.kappa_zeta,
         true,
-        false,
         sc.precision.bounds(),
     );
-    let residuals: Vec<Option<f64>> = nominal.iter().map(|w| Some(0.5 / w.sqrt())).collect();
-    let corrections = vec![0.0; layout.len()];
-    let detection = Detection::default();
+    let mut estimate = Estimate::new(&layout);
+    estimate.residuals = nominal.iter().map(|w| Some(0.5 / w.sqrt())).collect();
     let start = Instant::now();
     for k in 0..ticks {
-        learner.update(&LearnerInput {
+        learner.update(&PrecisionInput {
             tick: k,
             dt,
-            residuals: black_box(&residuals),
-            corrections: &corrections,
-            detection: &detection,
+            layout: &layout,
+            readings: &readings,
+            estimate: black_box(&estimate),
+            mu: &target,
+            mu_p: &zeros,
+            covariance: None,
+            torques: &zeros,
         });
     }
     let learner_us = per_tick(start);

@@ -1,12 +1,17 @@
 //! Detector calibration: healthy runs of the scenario (its faults removed, fixed precisions),
-//! their innovations summed per tick (METHOD.md section 6).
+//! their innovations summed per tick (docs/method.md, "The detector").
 
 use rayon::prelude::*;
 
 use super::runner::{Observer, TickRecord};
 use super::{Method, RunSetup, ScenarioError, fingerprint};
+use crate::fsio;
+use crate::precision::detector::calibration_size;
 use crate::precision::{Calibration, CalibrationAccumulator};
-use crate::sensors::{ChannelLayout, SensorGroup};
+
+/// Largest calibration, in stored numbers (per-tick means and covariances of every group):
+/// 1e8, 0.8 GB.
+pub const MAX_CALIBRATION_VALUES: usize = 100_000_000;
 
 /// Seeds of calibration runs start here: far from any table's seeds.
 pub const CALIBRATION_SEED_BASE: u64 = 1 << 40;
@@ -15,7 +20,7 @@ struct InnovationSums<'a>(&'a mut CalibrationAccumulator);
 
 impl Observer for InnovationSums<'_> {
     fn on_tick(&mut self, r: &TickRecord<'_>) {
-        self.0.add(r.tick as usize, r.innovations);
+        self.0.add(r.tick as usize, &r.estimate.innovations);
     }
 }
 
@@ -26,8 +31,9 @@ pub fn calibrate(setup: &RunSetup, runs: usize) -> Result<Calibration, ScenarioE
     healthy.faults.clear();
     healthy.loaded.scenario.faults.clear();
     let sc = setup.scenario();
-    let layout = ChannelLayout::new(setup.model.joints.len());
+    let layout = setup.layout;
     let ticks = sc.ticks() as usize;
+    check_size(setup, runs)?;
     let parts: Vec<Result<CalibrationAccumulator, ScenarioError>> = (0..runs as u64)
         .into_par_iter()
         .map(|i| {
@@ -56,7 +62,44 @@ pub fn calibrate(setup: &RunSetup, runs: usize) -> Result<Calibration, ScenarioE
     for part in parts {
         total.merge(&part?);
     }
-    Ok(total.finish(sc.dt, sc.detector.pool_ticks, fingerprint(setup)))
+    let cal = total.finish(sc.dt, sc.detector.pool_ticks, fingerprint(setup));
+    if let Some((tick, group)) = cal.degenerate_tick() {
+        return Err(ScenarioError::Calibration {
+            path: setup.loaded.path.clone(),
+            message: format!(
+                "the healthy {group} innovations at tick {tick} have a covariance that is not \
+                 positive definite (a noise-free sensor?); the detector cannot test them"
+            ),
+        });
+    }
+    Ok(cal)
+}
+
+/// Refuses a calibration too large to hold (checked before any run).
+pub fn check_size(setup: &RunSetup, runs: usize) -> Result<(), ScenarioError> {
+    let values = calibration_size(&setup.layout, setup.scenario().ticks() as usize);
+    // While it is accumulated, each worker thread holds three times the calibration's size.
+    if values.saturating_mul(3) > MAX_CALIBRATION_VALUES.saturating_mul(3) {
+        return Err(ScenarioError::Invalid {
+            path: setup.loaded.path.clone(),
+            field: "duration".into(),
+            message: format!(
+                "a detector calibration of {} ticks would hold {values} numbers; at most                  {MAX_CALIBRATION_VALUES} (shorten the run or use a method without a detector)",
+                setup.scenario().ticks()
+            ),
+        });
+    }
+    if !(2..=crate::precision::detector::MAX_CALIBRATION_RUNS).contains(&runs) {
+        return Err(ScenarioError::Invalid {
+            path: setup.loaded.path.clone(),
+            field: "detector.calibration_runs".into(),
+            message: format!(
+                "{runs} runs; must be in 2..={}",
+                crate::precision::detector::MAX_CALIBRATION_RUNS
+            ),
+        });
+    }
+    Ok(())
 }
 
 /// Loads a calibration file and checks it belongs to this scenario (exit 2 otherwise).
@@ -68,7 +111,7 @@ pub fn load_calibration(
         path: path.to_path_buf(),
         message,
     };
-    let text = std::fs::read_to_string(path)
+    let text = fsio::read_text(path, fsio::MAX_CALIBRATION_BYTES)
         .map_err(|e| err(format!("cannot read the calibration: {e}")))?;
     let cal = Calibration::from_json(&text).map_err(|m| err(format!("not a calibration: {m}")))?;
     check_calibration(setup, &cal).map_err(err)?;
@@ -84,19 +127,14 @@ fn check_calibration(setup: &RunSetup, cal: &Calibration) -> Result<(), String> 
             cal.fingerprint, expected
         ));
     }
-    let layout = ChannelLayout::new(setup.model.joints.len());
-    let expected_groups: Vec<(&str, Vec<usize>)> = SensorGroup::ALL
-        .iter()
-        .map(|&g| (g.name(), layout.group_range(g).collect()))
-        .collect();
-    let groups_match = cal.groups.len() == expected_groups.len()
-        && cal
-            .groups
-            .iter()
-            .zip(&expected_groups)
-            .all(|(g, (name, channels))| g.group == *name && &g.channels == channels);
-    if !groups_match {
+    if !cal.matches(&setup.layout) {
         return Err("its sensor groups do not match this arm's channels".into());
+    }
+    if let Some((tick, group)) = cal.degenerate_tick() {
+        return Err(format!(
+            "its {group} covariance at tick {tick} is not positive definite; the detector \
+             could not test there (recalibrate with more runs)"
+        ));
     }
     if cal.ticks < setup.scenario().ticks() as usize {
         return Err(format!(
@@ -125,7 +163,7 @@ pub fn cached_calibration(
         ))
     });
     if let Some(file) = &file
-        && let Ok(text) = std::fs::read_to_string(file)
+        && let Ok(text) = fsio::read_text(file, fsio::MAX_CALIBRATION_BYTES)
         && let Ok(cal) = Calibration::from_json(&text)
         && cal.runs == runs
         && check_calibration(setup, &cal).is_ok()
@@ -137,7 +175,7 @@ pub fn cached_calibration(
         && let Some(dir) = file.parent()
         && std::fs::create_dir_all(dir).is_ok()
     {
-        let _ = crate::report::write_atomic(file, cal.to_json().as_bytes());
+        let _ = fsio::write_atomic(file, cal.to_json().as_bytes());
     }
     Ok((cal, false))
 }

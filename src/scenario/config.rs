@@ -5,9 +5,10 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use super::{Method, ScenarioError};
+use crate::control::{ControlConfig, PidGains};
+use crate::estimation::uaic::{Prediction, UaicConfig, UpdateScheme};
 use crate::precision::{DetectorConfig, Isolation, PrecisionBounds};
-use crate::sensors::{CameraConfig, FaultSpec, SensorConfig};
-use crate::uaic::ControllerConfig;
+use crate::sensors::{CameraConfig, ChannelLayout, FaultSpec, SensorConfig};
 
 /// A scenario: the arm, its start and targets, sensors, camera, GP, controller, precision
 /// method, detector and faults, duration, tick and seed.
@@ -26,6 +27,9 @@ pub struct Scenario {
     /// Seed of the sensor noise (the GP has its own).
     #[serde(default = "default_seed")]
     pub seed: u64,
+    /// Ticks between trajectory rows (1: every tick).
+    #[serde(default = "default_record_every")]
+    pub record_every: u64,
     pub robot: RobotConfig,
     pub initial: InitialState,
     /// Set points: from `time` on, the target is `q`.
@@ -46,8 +50,22 @@ pub struct Scenario {
     pub faults: Vec<FaultSpec>,
 }
 
-/// Longest run, in ticks: 2e6 (2000 s at 1 kHz). A recorded run keeps every tick in memory.
-pub const MAX_TICKS: u64 = 2_000_000;
+/// Longest run, in ticks: 1e9 (about 11.6 days of simulated time at 1 kHz, hours of wall time).
+/// A run's memory does not grow with its length; its trajectory file does, by
+/// [`MAX_TRAJECTORY_BYTES`].
+pub const MAX_TICKS: u64 = 1_000_000_000;
+
+/// Largest trajectory file a run may be set up to write (estimated at 24 bytes per value):
+/// 4 GiB. Longer runs record every k-th tick (`record_every`).
+pub const MAX_TRAJECTORY_BYTES: u64 = 4 << 30;
+
+/// Most targets and most faults in one scenario.
+pub const MAX_TARGETS: usize = 10_000;
+pub const MAX_FAULTS: usize = 1_000;
+
+fn default_record_every() -> u64 {
+    1
+}
 
 fn default_dt() -> f64 {
     1e-3
@@ -72,6 +90,9 @@ pub struct RobotConfig {
     #[serde(default = "default_iterations")]
     pub solver_iterations: usize,
 }
+
+/// Most solver iterations (substeps) per tick.
+pub const MAX_SOLVER_ITERATIONS: usize = 1000;
 
 impl RobotConfig {
     /// The simulated arm's options.
@@ -147,6 +168,79 @@ impl Default for GpConfig {
     }
 }
 
+/// The `[controller]` section: the u-AIC's belief ([`UaicConfig`]) and the control stage
+/// ([`ControlConfig`]) in one table, as users write it. Defaults are those two structs'.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ControllerConfig {
+    pub update: UpdateScheme,
+    /// Gauss-Newton step length eta in (0, 1].
+    pub step: f64,
+    /// Gradient-descent gain kappa_mu (1/s), used by `update = "gradient"`.
+    pub kappa_mu: f64,
+    pub prediction: Prediction,
+    /// Precision of the position prior P_mu (1/rad^2).
+    pub prior_position_precision: f64,
+    /// Precision of the velocity prior P_mu' (s^2/rad^2).
+    pub prior_velocity_precision: f64,
+    /// Ticks over which the prior's precisions ramp up (0: no ramp).
+    pub prior_warmup_ticks: u64,
+    /// Finite action gain kappa_u (1/s); absent: u = f* (the authors' kappa_u -> infinity).
+    pub kappa_u: Option<f64>,
+    /// Control precision P_u, used with a finite kappa_u.
+    pub control_precision: f64,
+    pub gains: PidGains,
+}
+
+impl Default for ControllerConfig {
+    fn default() -> Self {
+        let b = UaicConfig::default();
+        let c = ControlConfig::default();
+        Self {
+            update: b.update,
+            step: b.step,
+            kappa_mu: b.kappa_mu,
+            prediction: b.prediction,
+            prior_position_precision: b.prior_position_precision,
+            prior_velocity_precision: b.prior_velocity_precision,
+            prior_warmup_ticks: b.prior_warmup_ticks,
+            kappa_u: c.kappa_u,
+            control_precision: c.control_precision,
+            gains: c.gains,
+        }
+    }
+}
+
+impl ControllerConfig {
+    /// The u-AIC's belief settings.
+    pub fn uaic(&self) -> UaicConfig {
+        UaicConfig {
+            update: self.update,
+            step: self.step,
+            kappa_mu: self.kappa_mu,
+            prediction: self.prediction,
+            prior_position_precision: self.prior_position_precision,
+            prior_velocity_precision: self.prior_velocity_precision,
+            prior_warmup_ticks: self.prior_warmup_ticks,
+        }
+    }
+
+    /// The control stage's settings.
+    pub fn control(&self) -> ControlConfig {
+        ControlConfig {
+            gains: self.gains.clone(),
+            kappa_u: self.kappa_u,
+            control_precision: self.control_precision,
+        }
+    }
+
+    /// Checks both parts for an arm of `n_joints`; returns the offending field and why.
+    pub fn validate(&self, n_joints: usize) -> Result<(), (String, String)> {
+        self.uaic().validate()?;
+        self.control().validate(n_joints)
+    }
+}
+
 /// The precision method and its parameters.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -206,6 +300,8 @@ pub struct DetectorSettings {
     pub pool_ticks: usize,
     /// Healthy runs for an on-the-fly calibration.
     pub calibration_runs: usize,
+    /// Quiet ticks before an isolated channel is re-admitted (0: never).
+    pub rearm_ticks: u64,
     /// A calibration file (relative to the scenario file); default: calibrate on the fly.
     pub calibration: Option<PathBuf>,
 }
@@ -218,6 +314,7 @@ impl Default for DetectorSettings {
             isolation: d.isolation,
             pool_ticks: d.pool_ticks,
             calibration_runs: d.calibration_runs,
+            rearm_ticks: d.rearm_ticks,
             calibration: None,
         }
     }
@@ -231,6 +328,7 @@ impl DetectorSettings {
             isolation: self.isolation,
             pool_ticks: self.pool_ticks,
             calibration_runs: self.calibration_runs,
+            rearm_ticks: self.rearm_ticks,
         }
     }
 }
@@ -252,8 +350,9 @@ impl Scenario {
         current
     }
 
-    /// Checks everything that does not need the arm; `n_joints` the arm's joint count.
-    pub fn validate(&self, n_joints: usize, file: &Path) -> Result<(), ScenarioError> {
+    /// Checks everything against the arm's channel layout; errors name `file` and the key.
+    pub fn validate(&self, layout: &ChannelLayout, file: &Path) -> Result<(), ScenarioError> {
+        let n_joints = layout.n_joints();
         let bad = |field: &str, message: String| ScenarioError::Invalid {
             path: file.to_path_buf(),
             field: field.to_string(),
@@ -292,18 +391,48 @@ impl Scenario {
         }
         positive("dt", self.dt)?;
         positive("duration", self.duration)?;
+        if self.dt > 0.1 {
+            return Err(bad("dt", "must be <= 0.1 s".into()));
+        }
+        if self.dt < 1e-6 {
+            return Err(bad("dt", "must be >= 1e-6 s".into()));
+        }
+        if self.ticks() == 0 {
+            return Err(bad(
+                "duration",
+                format!(
+                    "{} s is shorter than one tick (dt = {} s)",
+                    self.duration, self.dt
+                ),
+            ));
+        }
         if self.duration / self.dt > MAX_TICKS as f64 {
             return Err(bad(
                 "duration",
                 format!(
-                    "{} ticks at dt = {}; at most {MAX_TICKS} (a run keeps every tick in memory)",
+                    "{} ticks at dt = {}; at most {MAX_TICKS}",
                     self.duration / self.dt,
                     self.dt
                 ),
             ));
         }
-        if self.dt > 0.1 {
-            return Err(bad("dt", "must be <= 0.1 s".into()));
+        if self.record_every == 0 || self.record_every > self.ticks() {
+            return Err(bad(
+                "record_every",
+                format!("must be in 1..={} (the run's ticks)", self.ticks()),
+            ));
+        }
+        let columns = super::trajectory::TrajectorySchema::new(layout).len() as u64;
+        let rows = self.ticks() / self.record_every + 1;
+        if rows.saturating_mul(columns).saturating_mul(24) > MAX_TRAJECTORY_BYTES {
+            return Err(bad(
+                "record_every",
+                format!(
+                    "{rows} trajectory rows of {columns} columns would exceed {} GiB; record every {} ticks or more",
+                    MAX_TRAJECTORY_BYTES >> 30,
+                    (self.ticks() * columns * 24).div_ceil(MAX_TRAJECTORY_BYTES)
+                ),
+            ));
         }
         if !self.robot.ee_offset.iter().all(|v| v.is_finite()) {
             return Err(bad("robot.ee_offset", "values must be finite".into()));
@@ -311,8 +440,11 @@ impl Scenario {
         if !self.robot.gravity.iter().all(|v| v.is_finite()) {
             return Err(bad("robot.gravity", "values must be finite".into()));
         }
-        if self.robot.solver_iterations == 0 {
-            return Err(bad("robot.solver_iterations", "must be >= 1".into()));
+        if !(1..=MAX_SOLVER_ITERATIONS).contains(&self.robot.solver_iterations) {
+            return Err(bad(
+                "robot.solver_iterations",
+                format!("must be in 1..={MAX_SOLVER_ITERATIONS}"),
+            ));
         }
         finite_vec("initial.q", &self.initial.q, n_joints)?;
         if let Some(qd) = &self.initial.qd {
@@ -320,6 +452,9 @@ impl Scenario {
         }
         if self.targets.is_empty() {
             return Err(bad("targets", "at least one target is needed".into()));
+        }
+        if self.targets.len() > MAX_TARGETS {
+            return Err(bad("targets", format!("at most {MAX_TARGETS}")));
         }
         let mut last = f64::NEG_INFINITY;
         for (i, t) in self.targets.iter().enumerate() {
@@ -405,13 +540,14 @@ impl Scenario {
             ));
         }
         if let Some(nominal) = &p.nominal {
-            if nominal.len() != 2 * n_joints + 2 {
+            if nominal.len() != layout.len() {
                 return Err(bad(
                     "precision.nominal",
                     format!(
-                        "has {} values; the arm has {} channels (enc1..enc{n_joints}, tach1..tach{n_joints}, cam_u, cam_v)",
+                        "has {} values; the arm has {} channels ({})",
                         nominal.len(),
-                        2 * n_joints + 2
+                        layout.len(),
+                        layout.names().join(", ")
                     ),
                 ));
             }
@@ -422,15 +558,15 @@ impl Scenario {
                 ));
             }
         }
-        if self.detector.pool_ticks > 10_000 {
-            return Err(bad("detector.pool_ticks", "must be <= 10000".into()));
-        }
         self.detector
             .config()
             .validate()
             .map_err(|(f, m)| bad(&format!("detector.{f}"), m))?;
+        if self.faults.len() > MAX_FAULTS {
+            return Err(bad("faults", format!("at most {MAX_FAULTS}")));
+        }
         for (i, f) in self.faults.iter().enumerate() {
-            f.to_fault(n_joints)
+            f.to_fault(layout)
                 .map_err(|(field, m)| bad(&format!("faults[{i}].{field}"), m))?;
         }
         Ok(())

@@ -1,8 +1,22 @@
-//! The fault-tolerance methods, by the names used everywhere (CLI, files, tables).
+//! The fault-tolerance methods: their names (used everywhere: CLI, files, tables), what each is,
+//! and how each is built from a scenario. A method is an estimator (the belief source) and a
+//! precision method (what sets each channel's precision); every method drives the same f*.
+//!
+//! Adding a method: a variant here with its [`Method::info`] entry, its construction in
+//! [`build`], and its settings (if any) in the scenario's `[precision]` section.
 
 use std::fmt;
 
 use serde::{Deserialize, Serialize};
+
+use super::{RunSetup, ScenarioError};
+use crate::estimation::Estimator;
+use crate::estimation::uaic::Uaic;
+use crate::precision::{
+    Bayes, Calibration, Detector, Deterministic, Fixed, GatedLearning, Gradient, Oracle,
+    PrecisionMethod, Window,
+};
+use crate::sensors::ChannelLayout;
 
 /// A fault-tolerance method.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, PartialOrd, Ord)]
@@ -20,8 +34,20 @@ pub enum Method {
     Bayes,
     /// Precision from the last k residuals (the paper's future work).
     Window,
-    /// Told the faulty channel and the fault time: the reference, not a usable method.
+    /// Told each fault's channels and window: the reference, not a usable method.
     Oracle,
+}
+
+/// What a method is.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MethodInfo {
+    pub name: &'static str,
+    /// One line for help texts and reports.
+    pub summary: &'static str,
+    /// Whether it needs the calibrated detector.
+    pub needs_detector: bool,
+    /// The seed paper's Table 1 row (faulty joint, healthy joint MSE), if it has one.
+    pub paper_table1: Option<(f64, f64)>,
 }
 
 impl Method {
@@ -36,16 +62,61 @@ impl Method {
         Method::Oracle,
     ];
 
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::NoFt => "no-ft",
-            Self::PlAlways => "pl-always",
-            Self::PlDetect => "pl-detect",
-            Self::Deterministic => "deterministic",
-            Self::Bayes => "bayes",
-            Self::Window => "window",
-            Self::Oracle => "oracle",
+    pub fn info(self) -> MethodInfo {
+        let (name, summary, needs_detector, paper_table1) = match self {
+            Self::NoFt => (
+                "no-ft",
+                "u-AIC, fixed nominal precisions (no fault tolerance)",
+                false,
+                Some((0.0036, 0.0020)),
+            ),
+            Self::PlAlways => (
+                "pl-always",
+                "u-AIC, the paper's gradient precision learning at all times",
+                false,
+                Some((5.422e-5, 4.527e-5)),
+            ),
+            Self::PlDetect => (
+                "pl-detect",
+                "u-AIC, gradient precision learning once the detector fires (PL + FD)",
+                true,
+                Some((6.097e-5, 4.134e-5)),
+            ),
+            Self::Deterministic => (
+                "deterministic",
+                "u-AIC, the detector's isolated channel set to precision 0 (ECC)",
+                true,
+                Some((0.5946e-5, 0.3579e-5)),
+            ),
+            Self::Bayes => (
+                "bayes",
+                "u-AIC, Gamma-posterior precision with forgetting",
+                false,
+                None,
+            ),
+            Self::Window => (
+                "window",
+                "u-AIC, precision from the last k residuals",
+                false,
+                None,
+            ),
+            Self::Oracle => (
+                "oracle",
+                "u-AIC told each fault's channels and window (the reference)",
+                false,
+                None,
+            ),
+        };
+        MethodInfo {
+            name,
+            summary,
+            needs_detector,
+            paper_table1,
         }
+    }
+
+    pub fn name(self) -> &'static str {
+        self.info().name
     }
 
     pub fn parse(name: &str) -> Option<Self> {
@@ -54,18 +125,12 @@ impl Method {
 
     /// Whether the method needs the calibrated detector.
     pub fn needs_detector(self) -> bool {
-        matches!(self, Self::PlDetect | Self::Deterministic)
+        self.info().needs_detector
     }
 
     /// The seed paper's Table 1 row for this method (faulty joint, healthy joint MSE), if any.
     pub fn paper_table1(self) -> Option<(f64, f64)> {
-        match self {
-            Self::NoFt => Some((0.0036, 0.0020)),
-            Self::PlAlways => Some((5.422e-5, 4.527e-5)),
-            Self::PlDetect => Some((6.097e-5, 4.134e-5)),
-            Self::Deterministic => Some((0.5946e-5, 0.3579e-5)),
-            _ => None,
-        }
+        self.info().paper_table1
     }
 }
 
@@ -85,4 +150,79 @@ impl std::str::FromStr for Method {
             )
         })
     }
+}
+
+/// What building a method needs.
+pub struct MethodContext<'a> {
+    pub setup: &'a RunSetup,
+    pub layout: &'a ChannelLayout,
+    /// Nominal precision per channel.
+    pub nominal: &'a [f64],
+    /// The detector's calibration (methods with a detector).
+    pub calibration: Option<&'a Calibration>,
+}
+
+/// A method's parts.
+pub type MethodParts = (Box<dyn Estimator>, Box<dyn PrecisionMethod>);
+
+/// Builds `method` for a run.
+pub fn build(method: Method, ctx: &MethodContext<'_>) -> Result<MethodParts, ScenarioError> {
+    let sc = ctx.setup.scenario();
+    let p = &sc.precision;
+    let nominal = ctx.nominal;
+    let bounds = p.bounds();
+    let uaic = || -> Box<dyn Estimator> {
+        Box::new(Uaic::new(
+            sc.controller.uaic(),
+            *ctx.layout,
+            ctx.setup.gp.clone(),
+            sc.dt,
+        ))
+    };
+    let gradient = || Gradient::new(nominal, p.kappa_zeta, p.correction, bounds);
+    let precision: Box<dyn PrecisionMethod> = match method {
+        Method::NoFt => Box::new(Fixed::new(nominal)),
+        Method::PlAlways => Box::new(gradient()),
+        Method::PlDetect => Box::new(GatedLearning::new(detector(ctx)?, Box::new(gradient()))),
+        Method::Deterministic => Box::new(Deterministic::new(detector(ctx)?, nominal)),
+        Method::Bayes => Box::new(Bayes::new(nominal, p.rho, p.correction, bounds)),
+        Method::Window => Box::new(Window::new(nominal, p.window, p.correction, bounds)),
+        Method::Oracle => {
+            let dt = sc.dt;
+            let windows = ctx
+                .setup
+                .faults
+                .iter()
+                .map(|f| (f.channels.clone(), f.start_tick(dt), f.end_tick(dt)))
+                .collect();
+            Box::new(Oracle::new(nominal, windows))
+        }
+    };
+    Ok((uaic(), precision))
+}
+
+/// The calibrated detector of a run, checked against its length.
+fn detector(ctx: &MethodContext<'_>) -> Result<Detector, ScenarioError> {
+    let sc = ctx.setup.scenario();
+    let cal = ctx.calibration.ok_or_else(|| ScenarioError::Calibration {
+        path: ctx.setup.loaded.path.clone(),
+        message: "this method needs a detector calibration".into(),
+    })?;
+    let ticks = sc.ticks();
+    if (cal.ticks as u64) < ticks {
+        return Err(ScenarioError::Calibration {
+            path: ctx.setup.loaded.path.clone(),
+            message: format!(
+                "the calibration covers {} ticks, the run has {ticks}",
+                cal.ticks
+            ),
+        });
+    }
+    if !cal.matches(ctx.layout) {
+        return Err(ScenarioError::Calibration {
+            path: ctx.setup.loaded.path.clone(),
+            message: "the calibration's sensor groups are not this arm's".into(),
+        });
+    }
+    Ok(Detector::new(cal, &sc.detector.config(), ctx.layout))
 }

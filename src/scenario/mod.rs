@@ -2,38 +2,44 @@
 //!
 //! [`config`] is the TOML schema (every default in one place, one `validate`); this module loads
 //! scenarios (from a file, or the embedded default), applies `--set KEY=VALUE` overrides, and
-//! prepares what every run of a scenario shares ([`RunSetup`]: the arm model, the GP, the
-//! faults). [`runner`] runs one (method, seed); [`calibrate`] makes the detector's healthy
-//! statistics; [`table`] runs every method over many seeds.
+//! prepares what every run of a scenario shares ([`RunSetup`]: the arm model, its channel
+//! layout, the GP, the faults). [`runner`] steps one (method, seed) with observers;
+//! [`metrics`] measures it; [`trajectory`] records it; [`calibrate`] makes the detector's
+//! healthy statistics; [`table`] runs every method over many seeds.
 
 pub mod bench;
 pub mod calibrate;
 pub mod config;
-mod method;
+pub mod method;
+pub mod metrics;
 pub mod runner;
 pub mod table;
+pub mod trajectory;
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-pub use config::{GpConfig, MAX_TICKS, PrecisionConfig, RobotConfig, Scenario, Target};
+pub use config::{
+    ControllerConfig, GpConfig, MAX_TICKS, PrecisionConfig, RobotConfig, Scenario, Target,
+};
 pub use method::Method;
-pub use runner::{NoObserver, Observer, Outcome, RunResult, TickRecord, TrajectoryRecorder, run};
+pub use metrics::{FaultOutcome, RunResult};
+pub use runner::{
+    NoObserver, Observer, Observers, Outcome, Simulation, TickRecord, run, run_parts,
+};
+pub use trajectory::{TrajectoryRecorder, TrajectorySchema, TrajectoryWriter};
 
+use crate::fsio::{self, FsError};
 use crate::gp::{self, GpError, GpModel};
 use crate::plant::{self, ArmModel, ArmOptions, PlantError};
-use crate::sensors::{Camera, Fault};
+use crate::sensors::{Camera, ChannelLayout, Fault};
 
 /// Errors of the scenario stage; each names the file and the key.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum ScenarioError {
-    #[error("{path}: cannot read the scenario")]
-    Read {
-        path: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
+    #[error(transparent)]
+    File(#[from] FsError),
     #[error("{path}: {message}")]
     Parse { path: PathBuf, message: String },
     #[error("{path}: `{field}` {message}")]
@@ -46,6 +52,13 @@ pub enum ScenarioError {
     Override { key: String, message: String },
     #[error(transparent)]
     Plant(#[from] PlantError),
+    #[error("{path}: `{field}`: {source}")]
+    Robot {
+        path: PathBuf,
+        field: &'static str,
+        #[source]
+        source: Box<PlantError>,
+    },
     #[error("{path}: the camera GP")]
     Gp {
         path: PathBuf,
@@ -77,10 +90,7 @@ pub struct LoadedScenario {
 impl LoadedScenario {
     /// Reads a scenario file and applies overrides (`KEY=VALUE`, dotted keys, `[i]` indices).
     pub fn from_file(path: &Path, overrides: &[String]) -> Result<Self, ScenarioError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ScenarioError::Read {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let text = fsio::read_text(path, fsio::MAX_SCENARIO_BYTES)?;
         let scenario = parse_scenario(&text, path, overrides)?;
         Ok(Self {
             scenario,
@@ -104,12 +114,13 @@ impl LoadedScenario {
         })
     }
 
-    /// Reads a file the scenario names (URDF, GP model, calibration) relative to it.
-    pub fn read_relative(&self, relative: &Path) -> Result<(PathBuf, String), std::io::Error> {
+    /// Reads a file the scenario names (URDF, GP model, calibration) relative to it, at most
+    /// `limit` bytes.
+    pub fn read_relative(&self, relative: &Path, limit: u64) -> Result<(PathBuf, String), FsError> {
         match &self.base_dir {
             Some(dir) => {
                 let full = dir.join(relative);
-                let text = std::fs::read_to_string(&full)?;
+                let text = fsio::read_text(&full, limit)?;
                 Ok((full, text))
             }
             None => {
@@ -120,11 +131,12 @@ impl LoadedScenario {
                     .map(|(name, text)| {
                         (PathBuf::from("<embedded>").join(name), (*text).to_string())
                     })
-                    .ok_or_else(|| {
-                        std::io::Error::new(
+                    .ok_or_else(|| FsError::Read {
+                        path: PathBuf::from("<embedded>").join(relative),
+                        source: std::io::Error::new(
                             std::io::ErrorKind::NotFound,
                             format!("{key} is not embedded; use a scenario file"),
-                        )
+                        ),
                     })
             }
         }
@@ -141,16 +153,22 @@ impl LoadedScenario {
     /// Loads the scenario's URDF.
     pub fn arm_model(&self) -> Result<ArmModel, ScenarioError> {
         let (path, text) = self
-            .read_relative(&self.scenario.robot.urdf)
-            .map_err(|source| PlantError::Unreadable {
-                path: self.resolve(&self.scenario.robot.urdf),
-                source,
+            .read_relative(&self.scenario.robot.urdf, fsio::MAX_URDF_BYTES)
+            .map_err(|e| ScenarioError::Invalid {
+                path: self.path.clone(),
+                field: "robot.urdf".into(),
+                message: e.to_string(),
             })?;
-        Ok(plant::parse_urdf(&text, &path)?)
+        plant::parse_urdf(&text, &path).map_err(|e| ScenarioError::Robot {
+            path: self.path.clone(),
+            field: "robot.urdf",
+            source: Box::new(e),
+        })
     }
 }
 
-/// Parses scenario TOML text with overrides applied.
+/// Parses scenario TOML text with overrides applied. Errors name the key (`faults[0].start`),
+/// and say when its value came from an override.
 pub fn parse_scenario(
     text: &str,
     path: &Path,
@@ -160,23 +178,46 @@ pub fn parse_scenario(
         path: path.to_path_buf(),
         message,
     };
+    let keyed = |key: String, message: String| {
+        if key.is_empty() || key == "." {
+            message
+        } else {
+            format!("`{key}`: {message}")
+        }
+    };
     if overrides.is_empty() {
         // Straight from the text: errors carry the line and column.
-        return toml::from_str(text).map_err(|e: toml::de::Error| parse_error(e.to_string()));
+        let de = toml::Deserializer::parse(text).map_err(|e| parse_error(e.to_string()))?;
+        return serde_path_to_error::deserialize(de)
+            .map_err(|e| parse_error(keyed(e.path().to_string(), e.into_inner().to_string())));
     }
     let mut table: toml::Table = toml::from_str(text).map_err(|e| parse_error(e.to_string()))?;
+    let mut keys = Vec::new();
     for item in overrides {
-        apply_override(&mut table, item)?;
+        keys.push(apply_override(&mut table, item)?);
     }
-    let scenario: Scenario = table
-        .try_into()
-        .map_err(|e: toml::de::Error| parse_error(e.to_string()))?;
-    Ok(scenario)
+    serde_path_to_error::deserialize(toml::Value::Table(table)).map_err(|e| {
+        let key = e.path().to_string();
+        let message = e.into_inner().to_string();
+        match keys.iter().zip(overrides).rev().find(|(k, _)| {
+            key == **k || key.starts_with(&format!("{k}.")) || key.starts_with(&format!("{k}["))
+        }) {
+            Some((_, item)) => ScenarioError::Override {
+                key: item
+                    .split_once('=')
+                    .map_or(item.as_str(), |(k, _)| k)
+                    .trim()
+                    .to_string(),
+                message: format!("{} (in {})", keyed(key, message), path.display()),
+            },
+            None => parse_error(keyed(key, message)),
+        }
+    })
 }
 
 /// Applies one `KEY=VALUE` to the TOML table. VALUE is read as TOML (`3`, `[1, 2]`, `true`,
-/// `"text"`), falling back to a bare string.
-fn apply_override(table: &mut toml::Table, item: &str) -> Result<(), ScenarioError> {
+/// `"text"`), falling back to a bare string. Returns the key in path form (`a.b[2].c`).
+fn apply_override(table: &mut toml::Table, item: &str) -> Result<String, ScenarioError> {
     let (key, value) = item
         .split_once('=')
         .ok_or_else(|| ScenarioError::Override {
@@ -189,6 +230,11 @@ fn apply_override(table: &mut toml::Table, item: &str) -> Result<(), ScenarioErr
         message,
     };
     let value = value.trim();
+    if item.chars().any(char::is_control) {
+        return Err(err(
+            "contains a newline or another control character; one KEY=VALUE per --set".into(),
+        ));
+    }
     let parsed: toml::Value = match toml::from_str::<toml::Table>(&format!("v = {value}")) {
         Ok(mut t) => t.remove("v").expect("just set"),
         Err(_) => toml::Value::String(value.to_string()),
@@ -217,7 +263,7 @@ fn apply_override(table: &mut toml::Table, item: &str) -> Result<(), ScenarioErr
         match index {
             None if last => {
                 current.insert(name.clone(), parsed);
-                return Ok(());
+                return Ok(key.to_string());
             }
             None => {
                 let entry = current
@@ -238,7 +284,7 @@ fn apply_override(table: &mut toml::Table, item: &str) -> Result<(), ScenarioErr
                     .ok_or_else(|| err(format!("`{name}` has {len} entries")))?;
                 if last {
                     *element = parsed;
-                    return Ok(());
+                    return Ok(key.to_string());
                 }
                 current = element
                     .as_table_mut()
@@ -246,14 +292,16 @@ fn apply_override(table: &mut toml::Table, item: &str) -> Result<(), ScenarioErr
             }
         }
     }
-    Ok(())
+    Ok(key.to_string())
 }
 
-/// What every run of a scenario shares: the validated scenario, arm model, GP and faults.
+/// What every run of a scenario shares: the validated scenario, arm model, channel layout, GP
+/// and faults.
 #[derive(Clone)]
 pub struct RunSetup {
     pub loaded: LoadedScenario,
     pub model: Arc<ArmModel>,
+    pub layout: ChannelLayout,
     pub gp: Arc<GpModel>,
     pub faults: Vec<Fault>,
     /// How the GP was obtained, for reports.
@@ -277,14 +325,19 @@ impl RunSetup {
         let model = loaded.arm_model()?;
         let n = model.joints.len();
         let sc = &loaded.scenario;
-        sc.validate(n, &loaded.path)?;
+        let layout = ChannelLayout::new(n, sc.camera.model);
+        sc.validate(&layout, &loaded.path)?;
         if model.link(&sc.robot.ee_link).is_none() {
-            return Err(model.unknown_link_error(&sc.robot.ee_link).into());
+            return Err(ScenarioError::Robot {
+                path: loaded.path.clone(),
+                field: "robot.ee_link",
+                source: Box::new(model.unknown_link_error(&sc.robot.ee_link)),
+            });
         }
         let faults = sc
             .faults
             .iter()
-            .map(|f| f.to_fault(n).expect("validated"))
+            .map(|f| f.to_fault(&layout).expect("validated"))
             .collect();
         let (gp, gp_source) = match &sc.gp.model {
             Some(rel) => {
@@ -293,7 +346,7 @@ impl RunSetup {
                     path: loaded.path.clone(),
                     source,
                 })?;
-                if gp.n_inputs != n || gp.n_outputs != 2 {
+                if gp.n_inputs != n || gp.n_outputs != layout.camera_outputs() {
                     return Err(ScenarioError::Gp {
                         path: loaded.path.clone(),
                         source: GpError::WrongInputs {
@@ -320,6 +373,7 @@ impl RunSetup {
         };
         Ok(Self {
             model: Arc::new(model),
+            layout,
             gp: Arc::new(gp),
             faults,
             gp_source,
@@ -329,6 +383,24 @@ impl RunSetup {
 
     pub fn scenario(&self) -> &Scenario {
         &self.loaded.scenario
+    }
+
+    /// Nominal precision per channel: the scenario's `precision.nominal`, else 1 / sigma^2 of
+    /// each channel's noise.
+    pub fn nominal_precisions(&self) -> Vec<f64> {
+        let sc = self.scenario();
+        sc.precision.nominal.clone().unwrap_or_else(|| {
+            let sigmas: Vec<f64> = self
+                .layout
+                .channels()
+                .map(|c| match c {
+                    crate::sensors::Channel::Encoder(_) => sc.sensors.encoder_sigma,
+                    crate::sensors::Channel::Tachometer(_) => sc.sensors.tachometer_sigma,
+                    crate::sensors::Channel::Camera(_) => sc.camera.sigma,
+                })
+                .collect();
+            runner::nominal_precisions(&sigmas)
+        })
     }
 
     /// Arm options from the scenario.
@@ -377,19 +449,25 @@ pub fn train_gp(
     .map_err(gp_err)
 }
 
-/// A fingerprint of everything that shapes a healthy run's innovations: the scenario without its
-/// faults, seed and learner settings (the nominal precisions kept), the URDF's text and the camera
-/// GP itself (FNV-1a 64 of the canonical text: a label, not a security hash).
+/// A fingerprint of everything a calibration's data depend on: the scenario without its faults,
+/// seed, learner settings (the nominal precisions kept), recording and the detector settings
+/// that act only when testing (alpha, isolation, re-admission), plus the URDF's text and the
+/// camera GP itself (FNV-1a 64 of the canonical text: a label, not a security hash).
 pub fn fingerprint(setup: &RunSetup) -> String {
     let mut s = setup.scenario().clone();
     s.faults.clear();
     s.seed = 0;
+    s.record_every = 1;
     s.precision = PrecisionConfig {
         nominal: s.precision.nominal.clone(),
         ..PrecisionConfig::default()
     };
+    let defaults = config::DetectorSettings::default();
     s.detector.calibration = None;
     s.detector.calibration_runs = 0;
+    s.detector.alpha = defaults.alpha;
+    s.detector.isolation = defaults.isolation;
+    s.detector.rearm_ticks = defaults.rearm_ticks;
     s.name = String::new();
     s.description = String::new();
     // Where files live does not change a run; what they hold is hashed below.
@@ -397,7 +475,7 @@ pub fn fingerprint(setup: &RunSetup) -> String {
     s.gp = GpConfig::default();
     let urdf = setup
         .loaded
-        .read_relative(&setup.scenario().robot.urdf)
+        .read_relative(&setup.scenario().robot.urdf, fsio::MAX_URDF_BYTES)
         .map(|(_, text)| text)
         .unwrap_or_default();
     let mut hash: u64 = 0xcbf29ce484222325;

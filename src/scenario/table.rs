@@ -77,7 +77,7 @@ pub fn run_table(
     let mut rows: Vec<TableRow> = methods
         .iter()
         .map(|&method| {
-            let mine: Vec<&RunResult> = runs.iter().filter(|r| r.method == method).collect();
+            let mine: Vec<&RunResult> = runs.iter().filter(|r| r.method == method.name()).collect();
             let stat = |f: &dyn Fn(&RunResult) -> Option<f64>| {
                 let v: Vec<f64> = mine.iter().filter_map(|r| f(r)).collect();
                 (!v.is_empty()).then(|| mean_std(&v))

@@ -7,6 +7,9 @@
 //! `p_d = c + (p - c)(1 + K1 r^2 + K2 r^4 + K3 r^6)`, r = |p - c| in metres (Brown-Conrady).
 //! The default camera looks straight at the paper arm's x-z plane from -y, so its image
 //! coordinates (u, v) are the world's (x, z), not mirrored.
+//!
+//! `model = "position"` turns it into a position tracker (motion capture): three outputs, the
+//! end effector's world (x, y, z), with the same noise and occlusion and no distortion.
 
 use nalgebra::Vector3;
 use rapier3d_f64::parry::query::Ray;
@@ -14,11 +17,39 @@ use serde::{Deserialize, Serialize};
 
 use crate::plant::Arm;
 
+/// What the camera reports.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CameraModel {
+    /// A pinhole image: two outputs (u, v) in metres at the reference depth, distorted.
+    #[default]
+    Pinhole,
+    /// A position tracker: three outputs, the end effector's world (x, y, z).
+    Position,
+}
+
+impl CameraModel {
+    /// Number of outputs.
+    pub fn outputs(self) -> usize {
+        self.output_names().len()
+    }
+
+    /// Output names (channel names are `cam_<name>`).
+    pub fn output_names(self) -> &'static [&'static str] {
+        match self {
+            Self::Pinhole => &["u", "v"],
+            Self::Position => &["x", "y", "z"],
+        }
+    }
+}
+
 /// How the camera is set up. Defaults follow the paper: sigma 0.01 m, K1 = -1.5e-3, K2 = 5e-6,
 /// K3 = 0, looking at the origin from 3 m along -y with z up.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct CameraConfig {
+    /// `pinhole` (two image outputs) or `position` (three world coordinates).
+    pub model: CameraModel,
     /// Standard deviation of the Gaussian noise per image coordinate (m).
     pub sigma: f64,
     /// Radial distortion coefficients K1, K2, K3 (r in metres).
@@ -42,6 +73,7 @@ pub struct CameraConfig {
 impl Default for CameraConfig {
     fn default() -> Self {
         Self {
+            model: CameraModel::Pinhole,
             sigma: 0.01,
             k1: -1.5e-3,
             k2: 5e-6,
@@ -74,8 +106,13 @@ impl CameraConfig {
         finite("look_at", &self.look_at)?;
         finite("up", &self.up)?;
         finite("optical_centre", &self.optical_centre)?;
-        if self.sigma < 0.0 {
-            return Err(("sigma", "must be >= 0".into()));
+        if self.sigma < 0.0 || self.sigma > 1e3 {
+            return Err(("sigma", "must be in [0, 1e3] m".into()));
+        }
+        for (name, k) in [("k1", self.k1), ("k2", self.k2), ("k3", self.k3)] {
+            if k.abs() > 1e3 {
+                return Err((name, "must be at most 1e3 in size".into()));
+            }
         }
         let forward = Vector3::from(self.look_at) - Vector3::from(self.position);
         if forward.norm() < 1e-9 {
@@ -191,14 +228,32 @@ impl Camera {
             })
     }
 
-    /// What the camera sees of the arm's end effector this tick, before noise.
-    pub fn observe(&self, arm: &Arm) -> Result<[f64; 2], NotSeen> {
+    /// Number of outputs.
+    pub fn outputs(&self) -> usize {
+        self.config.model.outputs()
+    }
+
+    /// The noise-free outputs for an end effector at world point `p` (no occlusion test).
+    pub fn measure(&self, p: &Vector3<f64>, out: &mut [f64]) -> Result<(), NotSeen> {
+        match self.config.model {
+            CameraModel::Pinhole => {
+                let image = self.project(p).ok_or(NotSeen::Behind)?;
+                out.copy_from_slice(&image);
+            }
+            CameraModel::Position => out.copy_from_slice(p.as_slice()),
+        }
+        Ok(())
+    }
+
+    /// What the camera sees of the arm's end effector this tick, before noise, written into
+    /// `out` (one value per output).
+    pub fn observe(&self, arm: &Arm, out: &mut [f64]) -> Result<(), NotSeen> {
         let p = arm.ee_position();
-        let image = self.project(&p).ok_or(NotSeen::Behind)?;
+        self.measure(&p, out)?;
         if self.config.occlusion && self.occluded(arm, &p) {
             return Err(NotSeen::Occluded);
         }
-        Ok(image)
+        Ok(())
     }
 }
 

@@ -1,100 +1,182 @@
-//! Sensor faults: plain data (serde) for scenario files, compiled into per-tick actions.
+//! Sensor faults: typed data for scenario files, compiled into per-tick actions.
 //!
-//! A fault acts on the noisy reading of one channel (or both camera coordinates) from its start
-//! time until its optional end time. Several faults on one channel apply in file order.
+//! A fault acts on the noisy readings of its channels from its start time until its optional
+//! end time; a run may have any number of faults, overlapping or not. Several faults on one
+//! channel apply in file order.
+//!
+//! ```toml
+//! [[faults]]
+//! kind = "bias"            # freeze, bias, drift, gain, noise, dropout, stuck, spikes
+//! channel = "enc1"         # a channel, a group (enc, tach, cam) or a list: ["enc1", "cam"]
+//! start = 8.0              # s
+//! end = 12.0               # s, optional
+//! offset = 0.04            # the kind's own parameters
+//! ```
 
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use super::{Channel, ChannelLayout};
+use super::ChannelLayout;
 
-/// A fault as written in a scenario file.
-///
-/// ```toml
-/// [[faults]]
-/// channel = "enc1"   # enc<i>, tach<i>, cam_u, cam_v or cam (both camera coordinates)
-/// kind = "freeze"    # freeze, bias, drift, gain, noise, dropout, stuck, spikes
-/// start = 8.0        # s
-/// # end = 12.0       # s, optional
-/// # offset (bias), rate (drift), factor (gain, noise), value (stuck),
-/// # probability and magnitude (spikes)
-/// ```
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct FaultSpec {
-    pub channel: String,
-    pub kind: String,
-    pub start: f64,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub end: Option<f64>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub offset: Option<f64>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub rate: Option<f64>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub factor: Option<f64>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub value: Option<f64>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub probability: Option<f64>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub magnitude: Option<f64>,
-}
-
-/// What a fault does to a reading.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// What a fault does to a reading, with its parameters (`kind = "..."` in a file).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
 pub enum FaultKind {
     /// The reading stays at its value at the fault's first tick (the paper's fault).
-    Freeze,
+    Freeze {},
     /// A constant offset is added (the ECC camera fault is +0.04 m).
     Bias { offset: f64 },
     /// An offset growing at `rate` per second from the start.
     Drift { rate: f64 },
-    /// The reading is scaled.
+    /// The reading is scaled by `factor`.
     Gain { factor: f64 },
-    /// The noise's standard deviation is multiplied.
+    /// The noise's standard deviation is multiplied by `factor`.
     Noise { factor: f64 },
     /// The reading is missing.
-    Dropout,
-    /// The reading is a constant.
+    Dropout {},
+    /// The reading is the constant `value`.
     Stuck { value: f64 },
     /// With `probability` per tick, an outlier of size `magnitude` (random sign) is added.
     Spikes { probability: f64, magnitude: f64 },
 }
 
-/// Which channels a fault hits.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum FaultTarget {
-    One(Channel),
-    /// Both camera coordinates.
-    Camera,
+impl FaultKind {
+    /// The kind's name as written in files.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Self::Freeze {} => "freeze",
+            Self::Bias { .. } => "bias",
+            Self::Drift { .. } => "drift",
+            Self::Gain { .. } => "gain",
+            Self::Noise { .. } => "noise",
+            Self::Dropout {} => "dropout",
+            Self::Stuck { .. } => "stuck",
+            Self::Spikes { .. } => "spikes",
+        }
+    }
+
+    /// Checks the parameters; returns the offending one and why.
+    pub fn validate(&self) -> Result<(), (&'static str, String)> {
+        let finite = |name: &'static str, v: f64| {
+            if v.is_finite() && v.abs() <= 1e6 {
+                Ok(())
+            } else {
+                Err((name, format!("{v} must be finite and at most 1e6 in size")))
+            }
+        };
+        match *self {
+            Self::Freeze {} | Self::Dropout {} => Ok(()),
+            Self::Bias { offset } => finite("offset", offset),
+            Self::Drift { rate } => finite("rate", rate),
+            Self::Gain { factor } => finite("factor", factor),
+            Self::Noise { factor } => {
+                finite("factor", factor)?;
+                if factor < 0.0 {
+                    return Err(("factor", "must be >= 0".into()));
+                }
+                Ok(())
+            }
+            Self::Stuck { value } => finite("value", value),
+            Self::Spikes {
+                probability,
+                magnitude,
+            } => {
+                if !(0.0..=1.0).contains(&probability) {
+                    return Err(("probability", "must be in [0, 1]".into()));
+                }
+                finite("magnitude", magnitude)
+            }
+        }
+    }
 }
 
-/// A validated fault.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// Which channels a fault hits: one selector or a list (`"enc1"`, `"cam"`, `["enc1", "tach1"]`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum ChannelSelection {
+    One(String),
+    Many(Vec<String>),
+}
+
+impl ChannelSelection {
+    /// The selectors, in order.
+    pub fn selectors(&self) -> Vec<&str> {
+        match self {
+            Self::One(s) => vec![s.as_str()],
+            Self::Many(v) => v.iter().map(String::as_str).collect(),
+        }
+    }
+
+    /// A readable form: `enc1` or `enc1+cam`.
+    pub fn label(&self) -> String {
+        self.selectors().join("+")
+    }
+}
+
+impl From<&str> for ChannelSelection {
+    fn from(s: &str) -> Self {
+        Self::One(s.to_string())
+    }
+}
+
+/// A fault as written in a scenario file.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FaultSpec {
+    pub channel: ChannelSelection,
+    /// Start time (s).
+    pub start: f64,
+    /// End time (s); absent: until the run ends.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub end: Option<f64>,
+    #[serde(flatten)]
+    pub kind: FaultKind,
+}
+
+/// A fault checked against an arm's channels.
+#[derive(Clone, Debug, PartialEq)]
 pub struct Fault {
-    pub target: FaultTarget,
+    /// Channel indices hit, sorted, without repeats.
+    pub channels: Vec<usize>,
     pub kind: FaultKind,
     pub start: f64,
     pub end: Option<f64>,
+    /// The selection as written (for reports).
+    pub label: String,
 }
 
 impl FaultSpec {
-    /// Checks the spec against an arm with `n_joints` joints; on error returns the offending
-    /// field and why.
-    pub fn to_fault(&self, n_joints: usize) -> Result<Fault, (&'static str, String)> {
-        let target = if self.channel == "cam" {
-            FaultTarget::Camera
-        } else {
-            FaultTarget::One(Channel::parse(&self.channel, n_joints).ok_or((
+    /// Checks the spec against a layout; on error returns the offending field and why.
+    pub fn to_fault(&self, layout: &ChannelLayout) -> Result<Fault, (&'static str, String)> {
+        let selectors = self.channel.selectors();
+        if selectors.is_empty() {
+            return Err(("channel", "names no channel".into()));
+        }
+        if selectors.len() > layout.len() {
+            return Err((
                 "channel",
                 format!(
-                    "{:?} is not a channel of this arm (enc1..enc{n_joints}, tach1..tach{n_joints}, cam_u, cam_v, cam)",
-                    self.channel
+                    "lists {} selectors; the arm has {} channels",
+                    selectors.len(),
+                    layout.len()
                 ),
-            ))?)
-        };
+            ));
+        }
+        let mut channels = Vec::new();
+        for s in selectors {
+            let hit = layout.select(s).ok_or_else(|| {
+                (
+                    "channel",
+                    format!(
+                        "{s:?} is not a channel of this arm ({})",
+                        layout.selector_help()
+                    ),
+                )
+            })?;
+            channels.extend(hit);
+        }
+        channels.sort_unstable();
+        channels.dedup();
         if !self.start.is_finite() || self.start < 0.0 {
             return Err(("start", "must be finite and >= 0".into()));
         }
@@ -103,94 +185,41 @@ impl FaultSpec {
         {
             return Err(("end", "must be finite and after start".into()));
         }
-        let need = |name: &'static str, v: Option<f64>| match v {
-            Some(x) if x.is_finite() => Ok(x),
-            Some(_) => Err((name, "must be finite".to_string())),
-            None => Err((name, format!("is required for kind = {:?}", self.kind))),
-        };
-        let kind = match self.kind.as_str() {
-            "freeze" => FaultKind::Freeze,
-            "bias" => FaultKind::Bias {
-                offset: need("offset", self.offset)?,
-            },
-            "drift" => FaultKind::Drift {
-                rate: need("rate", self.rate)?,
-            },
-            "gain" => FaultKind::Gain {
-                factor: need("factor", self.factor)?,
-            },
-            "noise" => {
-                let factor = need("factor", self.factor)?;
-                if factor < 0.0 {
-                    return Err(("factor", "must be >= 0".into()));
-                }
-                FaultKind::Noise { factor }
-            }
-            "dropout" => FaultKind::Dropout,
-            "stuck" => FaultKind::Stuck {
-                value: need("value", self.value)?,
-            },
-            "spikes" => {
-                let probability = need("probability", self.probability)?;
-                if !(0.0..=1.0).contains(&probability) {
-                    return Err(("probability", "must be in [0, 1]".into()));
-                }
-                FaultKind::Spikes {
-                    probability,
-                    magnitude: need("magnitude", self.magnitude)?,
-                }
-            }
-            other => {
-                return Err((
-                    "kind",
-                    format!(
-                        "{other:?} is not a fault kind (freeze, bias, drift, gain, noise, dropout, stuck, spikes)"
-                    ),
-                ));
-            }
-        };
-        // Parameters that the kind does not use are refused: a typo'd kind would hide them.
-        let used: &[&str] = match kind {
-            FaultKind::Bias { .. } => &["offset"],
-            FaultKind::Drift { .. } => &["rate"],
-            FaultKind::Gain { .. } | FaultKind::Noise { .. } => &["factor"],
-            FaultKind::Stuck { .. } => &["value"],
-            FaultKind::Spikes { .. } => &["probability", "magnitude"],
-            FaultKind::Freeze | FaultKind::Dropout => &[],
-        };
-        for (name, v) in [
-            ("offset", self.offset),
-            ("rate", self.rate),
-            ("factor", self.factor),
-            ("value", self.value),
-            ("probability", self.probability),
-            ("magnitude", self.magnitude),
-        ] {
-            if v.is_some() && !used.contains(&name) {
-                return Err((name, format!("is not used by kind = {:?}", self.kind)));
-            }
-        }
+        self.kind.validate()?;
         Ok(Fault {
-            target,
-            kind,
+            channels,
+            kind: self.kind,
             start: self.start,
             end: self.end,
+            label: self.channel.label(),
         })
     }
 }
 
 impl Fault {
-    /// Whether the fault hits channel index `c` of `layout`.
-    pub fn hits(&self, layout: &ChannelLayout, c: usize) -> bool {
-        match self.target {
-            FaultTarget::One(ch) => layout.index(ch) == c,
-            FaultTarget::Camera => matches!(layout.channel(c), Channel::Camera(_)),
-        }
+    /// Whether the fault hits channel index `c`.
+    pub fn hits(&self, c: usize) -> bool {
+        self.channels.binary_search(&c).is_ok()
+    }
+
+    /// First tick the fault acts at.
+    pub fn start_tick(&self, dt: f64) -> u64 {
+        tick_at(self.start, dt)
+    }
+
+    /// First tick the fault no longer acts at (`None`: never ends).
+    pub fn end_tick(&self, dt: f64) -> Option<u64> {
+        self.end.map(|e| tick_at(e, dt))
+    }
+
+    /// Whether the fault acts at `tick`.
+    pub fn active_at(&self, tick: u64, dt: f64) -> bool {
+        tick >= self.start_tick(dt) && self.end_tick(dt).is_none_or(|e| tick < e)
     }
 }
 
 /// The first tick at or after time `t` (robust to rounding of `t / dt`).
-pub(crate) fn tick_at(t: f64, dt: f64) -> u64 {
+pub fn tick_at(t: f64, dt: f64) -> u64 {
     (t / dt - 1e-6).ceil().max(0.0) as u64
 }
 
@@ -213,9 +242,9 @@ impl ActiveFault {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         rng.set_stream(SPIKE_STREAM_BASE + index as u64);
         Self {
+            start_tick: fault.start_tick(dt),
+            end_tick: fault.end_tick(dt),
             fault,
-            start_tick: tick_at(fault.start, dt),
-            end_tick: fault.end.map(|e| tick_at(e, dt)),
             held: vec![None; n_channels],
             rng,
         }
@@ -237,7 +266,7 @@ impl ActiveFault {
     ) -> Option<f64> {
         use rand::RngExt;
         match self.fault.kind {
-            FaultKind::Freeze => *self.held[c].get_or_insert(reading),
+            FaultKind::Freeze {} => *self.held[c].get_or_insert(reading),
             FaultKind::Bias { offset } => reading.map(|r| r + offset),
             FaultKind::Drift { rate } => {
                 let elapsed = (tick - self.start_tick) as f64 * dt;
@@ -245,7 +274,7 @@ impl ActiveFault {
             }
             FaultKind::Gain { factor } => reading.map(|r| r * factor),
             FaultKind::Noise { factor } => reading.map(|r| r - noise + noise * factor),
-            FaultKind::Dropout => None,
+            FaultKind::Dropout {} => None,
             FaultKind::Stuck { value } => Some(value),
             FaultKind::Spikes {
                 probability,

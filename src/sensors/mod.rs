@@ -1,11 +1,16 @@
 //! Sensors and sensor faults: what the controller is allowed to see.
 //!
 //! Every control tick the [`SensorSuite`] reads the plant: an encoder and a tachometer per joint
-//! (true value + Gaussian noise) and a camera that sees the end effector (METHOD.md section 2).
-//! Each channel draws from its own noise stream, derived from the scenario seed and the channel's
-//! identity only (ChaCha8 with a stream id per channel), so adding a channel or a fault never
-//! changes another channel's noise. Faults ([`faults`]) then act on the noisy readings.
-//! A reading can be missing (camera occluded, dropout): that is explicit in [`Readings`].
+//! (true value + Gaussian noise) and a camera that sees the end effector (docs/method.md,
+//! "Sensors"). Each channel draws from its own noise stream, derived from the scenario seed and
+//! the channel's identity only (ChaCha8 with a stream id per channel), so adding a channel or a
+//! fault never changes another channel's noise. Faults ([`faults`]) then act on the noisy
+//! readings. A reading can be missing (camera occluded, dropout): that is explicit in
+//! [`Readings`].
+//!
+//! The [`ChannelLayout`] is the one place that knows which channels and sensor groups an arm has
+//! and what they are called; every later stage (estimators, learners, detector, trajectory
+//! columns, plots) asks it instead of assuming three groups or a two-output camera.
 
 pub mod camera;
 pub mod faults;
@@ -16,8 +21,8 @@ use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 
 use crate::plant::Arm;
-pub use camera::{Camera, CameraConfig, NotSeen};
-pub use faults::{Fault, FaultKind, FaultSpec, FaultTarget};
+pub use camera::{Camera, CameraConfig, CameraModel, NotSeen};
+pub use faults::{ChannelSelection, Fault, FaultKind, FaultSpec};
 
 /// One sensory channel.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -26,12 +31,13 @@ pub enum Channel {
     Encoder(usize),
     /// Joint velocity tachometer of joint i (0-based).
     Tachometer(usize),
-    /// Camera image coordinate 0 (u) or 1 (v).
+    /// Camera output r (0-based: u, v for an image; x, y, z for a position tracker).
     Camera(usize),
 }
 
 /// A group of channels of one kind (the detector works per group).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum SensorGroup {
     Encoders,
     Tachometers,
@@ -39,8 +45,6 @@ pub enum SensorGroup {
 }
 
 impl SensorGroup {
-    pub const ALL: [SensorGroup; 3] = [Self::Encoders, Self::Tachometers, Self::Camera];
-
     /// Short name: `enc`, `tach`, `cam`.
     pub fn name(self) -> &'static str {
         match self {
@@ -49,49 +53,33 @@ impl SensorGroup {
             Self::Camera => "cam",
         }
     }
+
+    /// The group of a short name.
+    pub fn parse(name: &str) -> Option<Self> {
+        match name {
+            "enc" => Some(Self::Encoders),
+            "tach" => Some(Self::Tachometers),
+            "cam" => Some(Self::Camera),
+            _ => None,
+        }
+    }
 }
 
 impl Channel {
-    /// Short name used in files: `enc1`, `tach2`, `cam_u`, `cam_v` (joints 1-based).
-    pub fn name(self) -> String {
-        match self {
-            Self::Encoder(i) => format!("enc{}", i + 1),
-            Self::Tachometer(i) => format!("tach{}", i + 1),
-            Self::Camera(0) => "cam_u".to_string(),
-            Self::Camera(_) => "cam_v".to_string(),
-        }
-    }
-
-    /// Parses a short name for an arm with `n_joints` joints.
-    pub fn parse(name: &str, n_joints: usize) -> Option<Self> {
-        let joint = |digits: &str| {
-            digits
-                .parse::<usize>()
-                .ok()
-                .filter(|&i| i >= 1 && i <= n_joints && !digits.starts_with('0'))
-                .map(|i| i - 1)
-        };
-        match name {
-            "cam_u" => Some(Self::Camera(0)),
-            "cam_v" => Some(Self::Camera(1)),
-            _ => {
-                if let Some(d) = name.strip_prefix("enc") {
-                    joint(d).map(Self::Encoder)
-                } else if let Some(d) = name.strip_prefix("tach") {
-                    joint(d).map(Self::Tachometer)
-                } else {
-                    None
-                }
-            }
-        }
-    }
-
     /// The group the channel belongs to.
     pub fn group(self) -> SensorGroup {
         match self {
             Self::Encoder(_) => SensorGroup::Encoders,
             Self::Tachometer(_) => SensorGroup::Tachometers,
             Self::Camera(_) => SensorGroup::Camera,
+        }
+    }
+
+    /// The joint a joint sensor measures (`None` for the camera).
+    pub fn joint(self) -> Option<usize> {
+        match self {
+            Self::Encoder(i) | Self::Tachometer(i) => Some(i),
+            Self::Camera(_) => None,
         }
     }
 
@@ -105,21 +93,45 @@ impl Channel {
     }
 }
 
-/// The channels of an arm with n joints, in a fixed order: encoders 0..n, tachometers n..2n,
-/// camera u, v at 2n, 2n+1.
+/// The channels of an arm, in a fixed order: encoders 0..n, tachometers n..2n, then the
+/// camera's outputs (2 for an image, 3 for a position tracker).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct ChannelLayout {
-    pub n_joints: usize,
+    n_joints: usize,
+    camera: CameraModel,
 }
 
+/// Every group, in layout order.
+const GROUPS: [SensorGroup; 3] = [
+    SensorGroup::Encoders,
+    SensorGroup::Tachometers,
+    SensorGroup::Camera,
+];
+
 impl ChannelLayout {
-    pub fn new(n_joints: usize) -> Self {
-        Self { n_joints }
+    /// The layout of an arm with `n_joints` joints seen by a camera of kind `camera`.
+    pub fn new(n_joints: usize, camera: CameraModel) -> Self {
+        Self { n_joints, camera }
     }
 
-    /// Number of channels: 2 n + 2.
+    /// Number of joints (one encoder and one tachometer each).
+    pub fn n_joints(&self) -> usize {
+        self.n_joints
+    }
+
+    /// The camera's kind.
+    pub fn camera_model(&self) -> CameraModel {
+        self.camera
+    }
+
+    /// Number of camera outputs.
+    pub fn camera_outputs(&self) -> usize {
+        self.camera.outputs()
+    }
+
+    /// Number of channels.
     pub fn len(&self) -> usize {
-        2 * self.n_joints + 2
+        2 * self.n_joints + self.camera_outputs()
     }
 
     /// Always false (an arm has at least one joint).
@@ -149,14 +161,97 @@ impl ChannelLayout {
         (0..self.len()).map(|i| self.channel(i))
     }
 
+    /// The sensor groups, in layout order.
+    pub fn groups(&self) -> &'static [SensorGroup] {
+        &GROUPS
+    }
+
+    /// Position of a group in [`Self::groups`].
+    pub fn group_index(&self, group: SensorGroup) -> usize {
+        self.groups()
+            .iter()
+            .position(|g| *g == group)
+            .expect("every group is in the layout")
+    }
+
     /// Channel indices of a group.
     pub fn group_range(&self, group: SensorGroup) -> std::ops::Range<usize> {
         let n = self.n_joints;
         match group {
             SensorGroup::Encoders => 0..n,
             SensorGroup::Tachometers => n..2 * n,
-            SensorGroup::Camera => 2 * n..2 * n + 2,
+            SensorGroup::Camera => 2 * n..2 * n + self.camera_outputs(),
         }
+    }
+
+    /// The group of channel index `c`.
+    pub fn group_of(&self, c: usize) -> SensorGroup {
+        self.channel(c).group()
+    }
+
+    /// Short name used in files: `enc1`, `tach2`, `cam_u`, `cam_v` (joints 1-based; a position
+    /// tracker's outputs are `cam_x`, `cam_y`, `cam_z`).
+    pub fn name(&self, c: usize) -> String {
+        match self.channel(c) {
+            Channel::Encoder(i) => format!("enc{}", i + 1),
+            Channel::Tachometer(i) => format!("tach{}", i + 1),
+            Channel::Camera(r) => format!("cam_{}", self.camera.output_names()[r]),
+        }
+    }
+
+    /// Every channel's name, in order.
+    pub fn names(&self) -> Vec<String> {
+        (0..self.len()).map(|c| self.name(c)).collect()
+    }
+
+    /// The channel index of a short name.
+    pub fn parse(&self, name: &str) -> Option<usize> {
+        let joint = |digits: &str| {
+            digits
+                .parse::<usize>()
+                .ok()
+                .filter(|&i| i >= 1 && i <= self.n_joints && !digits.starts_with('0'))
+                .map(|i| i - 1)
+        };
+        if let Some(out) = name.strip_prefix("cam_") {
+            return self
+                .camera
+                .output_names()
+                .iter()
+                .position(|o| *o == out)
+                .map(|r| self.index(Channel::Camera(r)));
+        }
+        if let Some(d) = name.strip_prefix("enc") {
+            joint(d).map(|i| self.index(Channel::Encoder(i)))
+        } else if let Some(d) = name.strip_prefix("tach") {
+            joint(d).map(|i| self.index(Channel::Tachometer(i)))
+        } else {
+            None
+        }
+    }
+
+    /// Channels named by a selector: a channel name, or a group name (`enc`, `tach`, `cam`)
+    /// for every channel of that group.
+    pub fn select(&self, selector: &str) -> Option<Vec<usize>> {
+        match SensorGroup::parse(selector) {
+            Some(g) => Some(self.group_range(g).collect()),
+            None => self.parse(selector).map(|c| vec![c]),
+        }
+    }
+
+    /// What a selector may be, for messages.
+    pub fn selector_help(&self) -> String {
+        let n = self.n_joints;
+        let cams: Vec<String> = self
+            .camera
+            .output_names()
+            .iter()
+            .map(|o| format!("cam_{o}"))
+            .collect();
+        format!(
+            "enc1..enc{n}, tach1..tach{n}, {}, or a group: enc, tach, cam",
+            cams.join(", ")
+        )
     }
 }
 
@@ -168,7 +263,7 @@ pub struct Readings {
 
 impl Readings {
     /// All channels missing.
-    pub fn missing(layout: ChannelLayout) -> Self {
+    pub fn missing(layout: &ChannelLayout) -> Self {
         Self {
             values: vec![None; layout.len()],
         }
@@ -209,6 +304,9 @@ impl SensorConfig {
             if !(v.is_finite() && v >= 0.0) {
                 return Err((name, "must be finite and >= 0".into()));
             }
+            if v > 1e3 {
+                return Err((name, "must be <= 1e3".into()));
+            }
         }
         Ok(())
     }
@@ -224,6 +322,7 @@ pub struct SensorSuite {
     dt: f64,
     q: Vec<f64>,
     qd: Vec<f64>,
+    image: Vec<f64>,
     truth: Vec<Option<f64>>,
     noise: Vec<f64>,
     /// Why the camera missed this tick, if it did.
@@ -231,7 +330,10 @@ pub struct SensorSuite {
 }
 
 impl SensorSuite {
-    /// A suite for an arm with `layout.n_joints` joints, sampled every `dt` seconds.
+    /// A suite for an arm with `layout.n_joints()` joints, sampled every `dt` seconds.
+    ///
+    /// # Panics
+    /// If the camera's kind is not the layout's.
     pub fn new(
         layout: ChannelLayout,
         config: &SensorConfig,
@@ -240,6 +342,11 @@ impl SensorSuite {
         dt: f64,
         seed: u64,
     ) -> Self {
+        assert_eq!(
+            camera.config().model,
+            layout.camera_model(),
+            "the camera is the layout's"
+        );
         let sigmas: Vec<f64> = layout
             .channels()
             .map(|c| match c {
@@ -259,21 +366,22 @@ impl SensorSuite {
         let faults = faults
             .iter()
             .enumerate()
-            .map(|(i, f)| faults::ActiveFault::new(*f, i, layout.len(), dt, seed))
+            .map(|(i, f)| faults::ActiveFault::new(f.clone(), i, layout.len(), dt, seed))
             .collect();
-        let n = layout.n_joints;
+        let n = layout.n_joints();
         Self {
             layout,
-            camera,
             sigmas,
             rngs,
             faults,
             dt,
             q: vec![0.0; n],
             qd: vec![0.0; n],
+            image: vec![0.0; layout.camera_outputs()],
             truth: vec![None; layout.len()],
             noise: vec![0.0; layout.len()],
             camera_miss: None,
+            camera,
         }
     }
 
@@ -307,21 +415,24 @@ impl SensorSuite {
 
     /// Reads the plant at tick `tick` (time `tick * dt`) into `out`, without allocating.
     pub fn read(&mut self, arm: &Arm, tick: u64, out: &mut Readings) {
-        let n = self.layout.n_joints;
+        let n = self.layout.n_joints();
         arm.read_state(&mut self.q, &mut self.qd);
         for i in 0..n {
             self.truth[i] = Some(self.q[i]);
             self.truth[n + i] = Some(self.qd[i]);
         }
-        match self.camera.observe(arm) {
-            Ok([u, v]) => {
-                self.truth[2 * n] = Some(u);
-                self.truth[2 * n + 1] = Some(v);
+        let cams = self.layout.group_range(SensorGroup::Camera);
+        match self.camera.observe(arm, &mut self.image) {
+            Ok(()) => {
+                for (c, v) in cams.zip(&self.image) {
+                    self.truth[c] = Some(*v);
+                }
                 self.camera_miss = None;
             }
             Err(why) => {
-                self.truth[2 * n] = None;
-                self.truth[2 * n + 1] = None;
+                for c in cams {
+                    self.truth[c] = None;
+                }
                 self.camera_miss = Some(why);
             }
         }
@@ -333,10 +444,8 @@ impl SensorSuite {
         }
         for fault in &mut self.faults {
             let active = fault.active(tick);
-            for c in 0..self.layout.len() {
-                if !fault.fault.hits(&self.layout, c) {
-                    continue;
-                }
+            for i in 0..fault.fault.channels.len() {
+                let c = fault.fault.channels[i];
                 if active {
                     out.values[c] = fault.apply(c, tick, self.dt, self.noise[c], out.values[c]);
                 } else {

@@ -151,8 +151,7 @@ pub fn run_recorded(
     aift::scenario::RunResult,
     aift::scenario::TrajectoryRecorder,
 ) {
-    let layout = aift::sensors::ChannelLayout::new(setup.model.joints.len());
-    let mut rec = aift::scenario::TrajectoryRecorder::new(layout);
+    let mut rec = aift::scenario::TrajectoryRecorder::new(&setup.layout);
     let result = aift::scenario::run(setup, method, seed, calibration, &mut rec).expect("run");
     (result, rec)
 }

@@ -6,13 +6,11 @@ use std::sync::Arc;
 
 use anyhow::{Context, anyhow};
 
+use aift::fsio::{FsError, OutputKind, Staged};
 use aift::plant::{self, Arm, ArmOptions};
 use aift::precision::Calibration;
-use aift::report::{self, run_files, table_files};
-use aift::scenario::{
-    self, LoadedScenario, Method, RunSetup, TrajectoryRecorder, calibrate, table,
-};
-use aift::sensors::ChannelLayout;
+use aift::report::{self, ReportError, run_files, table_files};
+use aift::scenario::{self, LoadedScenario, Method, RunSetup, calibrate, table};
 
 use crate::args::{
     BenchArgs, CalibrateArgs, CheckUrdfArgs, Cli, Command, RunArgs, ScenarioArgs, SimulateArgs,
@@ -40,6 +38,34 @@ fn internal(error: impl Into<anyhow::Error>) -> Failure {
         code: 1,
     }
 }
+
+/// A file error: exit 2 when the path given is at fault, 1 when the disk is.
+fn file_failure(error: FsError) -> Failure {
+    if error.is_input_error() {
+        bad_input(error)
+    } else {
+        internal(error)
+    }
+}
+
+/// A report error: exit 2 when the input is at fault, 1 otherwise.
+fn report_failure(error: ReportError) -> Failure {
+    if error.is_input_error() {
+        bad_input(error)
+    } else {
+        internal(error)
+    }
+}
+
+/// Stages an output (checked before any work: location, --force, a concurrent writer).
+fn stage(path: &Path, kind: OutputKind, force: bool) -> Result<Staged, Failure> {
+    Staged::begin(path, kind, force).map_err(file_failure)
+}
+
+/// Most seeds of a table.
+const MAX_SEEDS: usize = 100_000;
+/// Most ticks per stage of `bench`.
+const MAX_BENCH_TICKS: u64 = 100_000_000;
 
 pub fn dispatch(cli: Cli) -> Result<(), Failure> {
     match cli
@@ -73,36 +99,6 @@ fn prepare(args: &ScenarioArgs) -> Result<RunSetup, Failure> {
 fn parse_method(name: &str) -> Result<Method, Failure> {
     name.parse::<Method>()
         .map_err(|e| bad_input(anyhow!("--method: {e}")))
-}
-
-/// Checks an output folder before any work: an existing non-empty one needs `--force`.
-fn check_output_dir(dir: &Path, force: bool) -> Result<(), Failure> {
-    if dir.exists() {
-        if !dir.is_dir() {
-            return Err(bad_input(anyhow!(
-                "{} exists and is not a folder",
-                dir.display()
-            )));
-        }
-        let non_empty = std::fs::read_dir(dir)
-            .map_err(|e| internal(anyhow!("{}: {e}", dir.display())))?
-            .next()
-            .is_some();
-        if non_empty && !force {
-            return Err(bad_input(anyhow!(
-                "{} exists and is not empty; pass --force to write into it",
-                dir.display()
-            )));
-        }
-    }
-    Ok(())
-}
-
-/// Creates the output folder once every input has loaded and the work is done.
-fn create_output_dir(dir: &Path) -> Result<(), Failure> {
-    std::fs::create_dir_all(dir)
-        .with_context(|| format!("creating {}", dir.display()))
-        .map_err(internal)
 }
 
 /// Where on-the-fly calibrations are cached: `$AIFT_CACHE_DIR` (`off` disables the cache),
@@ -180,16 +176,12 @@ fn run(args: RunArgs) -> Result<(), Failure> {
     let dir = args.out.clone().unwrap_or_else(|| {
         PathBuf::from("runs").join(format!("{}-{}-{}", setup.scenario().name, method, seed))
     });
-    // Every input is loaded and the run done before the folder is touched.
-    check_output_dir(&dir, args.force)?;
+    // Every input is checked and the output staged before any work; the folder appears only
+    // when every file is written.
+    let staged = stage(&dir, OutputKind::Folder, args.force)?;
     let calibration = calibration_for(&setup, &[method], args.calib.as_ref())?;
-    let layout = ChannelLayout::new(setup.model.joints.len());
-    let mut recorder = TrajectoryRecorder::new(layout);
-    let result = scenario::run(&setup, method, seed, calibration.as_deref(), &mut recorder)
-        .map_err(bad_input)?;
-    create_output_dir(&dir)?;
-    run_files::write_run(&dir, &setup, &result, &recorder, calibration.as_deref())
-        .map_err(internal)?;
+    let result = run_files::run_into(staged, &setup, method, seed, calibration.as_deref())
+        .map_err(report_failure)?;
     let fmt_opt = |v: Option<f64>| v.map_or("n/a".to_string(), |x| format!("{x:.3e}"));
     println!(
         "scenario {} | method {} | seed {} | GP {}",
@@ -236,6 +228,26 @@ fn run(args: RunArgs) -> Result<(), Failure> {
         ),
         None => println!("no detection"),
     }
+    for (i, f) in result.faults.iter().enumerate() {
+        println!(
+            "fault {} ({} {} from {} s): {}",
+            i + 1,
+            f.label,
+            f.kind,
+            f.start,
+            match (f.delay, &f.isolated) {
+                (Some(d), Some(c)) => format!(
+                    "detected after {d:.3} s, isolated {c} ({})",
+                    if f.isolation_correct == Some(true) {
+                        "correct"
+                    } else {
+                        "wrong"
+                    }
+                ),
+                _ => "not detected".to_string(),
+            }
+        );
+    }
     println!(
         "speed: {:.0} ticks/s ({:.1}x real time)",
         result.ticks_per_second(),
@@ -255,19 +267,28 @@ fn run(args: RunArgs) -> Result<(), Failure> {
     Ok(())
 }
 
+/// Parses a method list; repeats are refused (each row would claim the seeds twice).
+fn parse_methods(list: &[String]) -> Result<Vec<Method>, Failure> {
+    if list.is_empty() {
+        return Ok(Method::ALL.to_vec());
+    }
+    let mut methods = Vec::new();
+    for m in list {
+        let method = parse_method(m.trim())?;
+        if methods.contains(&method) {
+            return Err(bad_input(anyhow!("--methods: {method} is listed twice")));
+        }
+        methods.push(method);
+    }
+    Ok(methods)
+}
+
 fn table(args: TableArgs) -> Result<(), Failure> {
     let start = std::time::Instant::now();
     let setup = prepare(&args.scenario)?;
-    let methods: Vec<Method> = if args.methods.is_empty() {
-        Method::ALL.to_vec()
-    } else {
-        args.methods
-            .iter()
-            .map(|m| parse_method(m.trim()))
-            .collect::<Result<_, _>>()?
-    };
-    if args.seeds == 0 {
-        return Err(bad_input(anyhow!("--seeds must be >= 1")));
+    let methods = parse_methods(&args.methods)?;
+    if args.seeds == 0 || args.seeds > MAX_SEEDS {
+        return Err(bad_input(anyhow!("--seeds must be in 1..={MAX_SEEDS}")));
     }
     let first = setup.scenario().seed;
     let seeds: Vec<u64> = (0..args.seeds as u64)
@@ -278,7 +299,7 @@ fn table(args: TableArgs) -> Result<(), Failure> {
         .out
         .clone()
         .unwrap_or_else(|| PathBuf::from("tables").join(&setup.scenario().name));
-    check_output_dir(&dir, args.force)?;
+    let staged = stage(&dir, OutputKind::Folder, args.force)?;
     let calibration = calibration_for(&setup, &methods, args.calib.as_ref())?;
     let bar = indicatif::ProgressBar::new((methods.len() * seeds.len()) as u64);
     if !std::io::IsTerminal::is_terminal(&std::io::stderr()) {
@@ -292,8 +313,10 @@ fn table(args: TableArgs) -> Result<(), Failure> {
     let result = table::run_table(&setup, &methods, &seeds, calibration.as_deref(), &tick)
         .map_err(bad_input)?;
     bar.finish_and_clear();
-    create_output_dir(&dir)?;
-    table_files::write_table(&dir, &setup, &result).map_err(internal)?;
+    table_files::write_table(staged.path(), &setup, &result).map_err(report_failure)?;
+    staged
+        .commit()
+        .map_err(|e| report_failure(ReportError::File(e)))?;
     print!("{}", table_files::table_markdown(&setup, &result));
     println!(
         "\n{} runs ({} methods x {} seeds) in {:.1} s (GP, calibration and runs) on {} threads; GP {}; wrote {}/table.csv, table.md, table.json, runs.csv",
@@ -313,12 +336,17 @@ fn calibrate_cmd(args: CalibrateArgs) -> Result<(), Failure> {
     let runs = args
         .runs
         .unwrap_or(setup.scenario().detector.calibration_runs);
-    if runs < 2 {
-        return Err(bad_input(anyhow!("--runs must be >= 2")));
-    }
+    calibrate::check_size(&setup, runs).map_err(bad_input)?;
+    let staged = stage(&args.out, OutputKind::File, true)?;
     let start = std::time::Instant::now();
     let cal = calibrate::calibrate(&setup, runs).map_err(bad_input)?;
-    report::write_atomic(&args.out, cal.to_json().as_bytes()).map_err(internal)?;
+    std::fs::write(staged.path(), cal.to_json()).map_err(|source| {
+        file_failure(FsError::Write {
+            path: args.out.clone(),
+            source,
+        })
+    })?;
+    staged.commit().map_err(file_failure)?;
     println!(
         "calibrated {} on {runs} healthy runs ({} ticks) in {:.1} s; fingerprint {}; wrote {}",
         setup.scenario().name,
@@ -357,10 +385,13 @@ fn train_gp(args: TrainGpArgs) -> Result<(), Failure> {
         loaded.scenario.gp.points = p;
     }
     let model = loaded.arm_model().map_err(bad_input)?;
+    let layout =
+        aift::sensors::ChannelLayout::new(model.joints.len(), loaded.scenario.camera.model);
     loaded
         .scenario
-        .validate(model.joints.len(), &loaded.path)
+        .validate(&layout, &loaded.path)
         .map_err(bad_input)?;
+    let staged = stage(&args.out, OutputKind::File, true)?;
     let points = loaded.scenario.gp.points;
     let start = std::time::Instant::now();
     let (gp, fit) = scenario::train_gp(&loaded, &model, points).map_err(bad_input)?;
@@ -374,7 +405,13 @@ fn train_gp(args: TrainGpArgs) -> Result<(), Failure> {
         2000,
         loaded.scenario.gp.seed.wrapping_add(1),
     );
-    report::write_atomic(&args.out, gp.to_json().as_bytes()).map_err(internal)?;
+    std::fs::write(staged.path(), gp.to_json()).map_err(|source| {
+        file_failure(FsError::Write {
+            path: args.out.clone(),
+            source,
+        })
+    })?;
+    staged.commit().map_err(file_failure)?;
     let h = &gp.hyperparameters;
     println!(
         "trained the camera GP of {} on {points} points in {seconds:.2} s ({} likelihood evaluations)",
@@ -407,6 +444,11 @@ fn train_gp(args: TrainGpArgs) -> Result<(), Failure> {
 }
 
 fn bench(args: BenchArgs) -> Result<(), Failure> {
+    if args.ticks == 0 || args.ticks > MAX_BENCH_TICKS {
+        return Err(bad_input(anyhow!(
+            "--ticks must be in 1..={MAX_BENCH_TICKS}"
+        )));
+    }
     let setup = prepare(&args.scenario)?;
     let figures = scenario::bench::bench(&setup, args.ticks).map_err(bad_input)?;
     println!("scenario: {}", setup.scenario().name);
@@ -491,13 +533,28 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
             aift::scenario::MAX_TICKS
         )));
     }
+    if args.dt > 0.1 {
+        return Err(bad_input(anyhow!("--dt = {} must be <= 0.1 s", args.dt)));
+    }
+    if args.dt > args.duration {
+        return Err(bad_input(anyhow!(
+            "--dt = {} is longer than --duration = {}",
+            args.dt,
+            args.duration
+        )));
+    }
     let mut options = ArmOptions {
         ee_link: args.ee.clone(),
         ..ArmOptions::default()
     };
     if let Some(it) = args.iterations {
+        let max = aift::scenario::config::MAX_SOLVER_ITERATIONS;
+        if !(1..=max).contains(&it) {
+            return Err(bad_input(anyhow!("--iterations must be in 1..={max}")));
+        }
         options.solver_iterations = it;
     }
+    let staged = stage(&args.out, OutputKind::File, true)?;
     let mut arm = Arm::from_urdf(&args.urdf, options).map_err(bad_input)?;
     let n = arm.n_joints();
     let check_len = |name: &str, v: &[f64]| {
@@ -518,6 +575,17 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
     check_len("qd0", &qd0)?;
     check_len("torque", &torque)?;
     let samples = plant::run_open_loop(&mut arm, &args.q0.0, &qd0, &torque, args.duration, args.dt);
+    if let Some(bad) = samples.iter().find(|s| {
+        s.q.iter()
+            .chain(&s.qd)
+            .any(|v| !v.is_finite() || v.abs() > 1e6)
+    }) {
+        return Err(bad_input(anyhow!(
+            "the simulation blew up at t = {} s (a joint state beyond 1e6); nothing written. \
+             Try a smaller --dt or more --iterations",
+            bad.t
+        )));
+    }
     let rows: Vec<Vec<f64>> = samples
         .iter()
         .map(|s| {
@@ -529,9 +597,10 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
         })
         .collect();
     let text = report::csv_text(&plant::open_loop_header(n), rows.iter().map(Vec::as_slice));
-    report::write_atomic(&args.out, text.as_bytes())
-        .with_context(|| "writing the trajectory")
+    std::fs::write(staged.path(), text)
+        .with_context(|| format!("writing {}", args.out.display()))
         .map_err(internal)?;
+    staged.commit().map_err(file_failure)?;
     println!(
         "wrote {} rows ({} joints, {} s at dt {}) to {}",
         rows.len(),

@@ -1,34 +1,34 @@
-//! The unbiased active inference controller (u-AIC): beliefs and control from descent on the
-//! variational free energy (METHOD.md section 4; the seed paper's eqs. 3-5, after ECC 2021).
+//! The unbiased active inference controller's belief (u-AIC): the state estimate from descent
+//! on the variational free energy (docs/method.md, "The u-AIC"; the seed paper's eqs. 3-5,
+//! after Baioumy et al., ECC 2021).
 //!
 //! Beliefs mu (joint positions) and mu' (velocities), x = [mu, mu']. With diagonal precisions,
 //! ```text
-//! F = 1/2 ( sum_i w_i e_i^2 - ln w_i )  +  1/2 ( e_x' P_x e_x - ln|P_x| )  [+ 1/2 (P_u e_u^2 - ln P_u)]
+//! F = 1/2 ( sum_i w_i e_i^2 - ln w_i )  +  1/2 ( e_x' P_x e_x - ln|P_x| )
 //! ```
 //! over the sensory channels i present this tick with w_i > 0 (encoders e = y_q - mu, tachometers
 //! e = y_qd - mu', camera e = y_v - g_v(mu)), and the state prior e_x = mu_x - x_hat with the
 //! constant-velocity prediction x_hat = [[I, dt I], [0, I]] mu_{x,k-1} (paper eq. 4). The
-//! "coupled" prediction (METHOD.md section 10) uses the current velocity belief instead:
-//! e_x = [mu - mu_{k-1} - dt mu', mu' - mu'_{k-1}].
+//! "coupled" prediction (docs/method.md, "Coupled prediction") uses the current velocity belief
+//! instead: e_x = [mu - mu_{k-1} - dt mu', mu' - mu'_{k-1}].
 //!
-//! The target enters only through f* (the control law), never the belief: u = f*(mu, mu', mu_d)
-//! as in the authors' code (kappa_u -> infinity), or mu_u descends F with a finite kappa_u.
+//! The target never enters the belief (that is what makes the estimate unbiased): the control
+//! law f* and the action belief mu_u live in [`crate::control`]; the e_u term of F vanishes once
+//! mu_u = f* and is left out of the belief's gradient, as in the authors' code.
 //!
 //! Two belief updates: a Gauss-Newton step from the prediction (default; scale-free, lands on
 //! the minimum of F's quadratic model for eta = 1) and the paper's explicit gradient descent
 //! `mu_x <- mu_x + dt (D mu_x - kappa_mu dF/dmu_x)` (first-order Euler, kept for fidelity).
-//! Nothing here knows about rapier: feed readings, a target and precisions; get torques.
-
-mod pid;
+//! Nothing here knows about rapier: feed readings and precisions; get a belief.
 
 use std::sync::Arc;
 
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
+use super::{Estimate, Estimator, EstimatorInput};
 use crate::gp::GpModel;
 use crate::sensors::{Channel, ChannelLayout, Readings};
-pub use pid::{Pid, PidGains};
 
 /// How the belief descends the free energy each tick.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -50,16 +50,15 @@ pub enum Prediction {
     Coupled,
 }
 
-/// Controller settings. Defaults: Gauss-Newton with eta = 1, coupled prediction,
-/// P_mu = 1e8 (100x the encoders' precision: METHOD.md section 4), P_mu' = 1e4, u = f*,
-/// the paper arm's PID gains.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct ControllerConfig {
+/// Settings of the u-AIC's belief. Defaults: Gauss-Newton with eta = 1, coupled prediction,
+/// P_mu = 1e8 (100x the encoders' precision: docs/method.md, "Prior scale"), P_mu' = 1e4, a
+/// 100-tick warm-up of the prior.
+#[derive(Clone, Debug, PartialEq)]
+pub struct UaicConfig {
     pub update: UpdateScheme,
     /// Gauss-Newton step length eta in (0, 1].
     pub step: f64,
-    /// Gradient-descent gain kappa_mu (1/s), used by `update = "gradient"`.
+    /// Gradient-descent gain kappa_mu (1/s), used by the gradient scheme.
     pub kappa_mu: f64,
     pub prediction: Prediction,
     /// Precision of the position prior P_mu (1/rad^2).
@@ -71,14 +70,9 @@ pub struct ControllerConfig {
     /// starts at the first (noisy) readings, and a full-strength prior would hold that noise
     /// for about P_mu / encoder precision ticks. 0 disables the ramp.
     pub prior_warmup_ticks: u64,
-    /// Finite action gain kappa_u (1/s); absent: u = f* (the authors' kappa_u -> infinity).
-    pub kappa_u: Option<f64>,
-    /// Control precision P_u, used with a finite kappa_u.
-    pub control_precision: f64,
-    pub gains: PidGains,
 }
 
-impl Default for ControllerConfig {
+impl Default for UaicConfig {
     fn default() -> Self {
         Self {
             update: UpdateScheme::GaussNewton,
@@ -88,18 +82,15 @@ impl Default for ControllerConfig {
             prior_position_precision: 1e8,
             prior_velocity_precision: 1e4,
             prior_warmup_ticks: 100,
-            kappa_u: None,
-            control_precision: 1.0,
-            gains: PidGains::paper(),
         }
     }
 }
 
-impl ControllerConfig {
-    /// Checks the settings for an arm of `n_joints`; returns the offending field and why.
-    pub fn validate(&self, n_joints: usize) -> Result<(), (String, String)> {
+impl UaicConfig {
+    /// Checks the settings; returns the offending field and why.
+    pub fn validate(&self) -> Result<(), (String, String)> {
         let positive = |name: &str, v: f64| {
-            if v.is_finite() && v > 0.0 {
+            if v.is_finite() && v > 0.0 && v <= 1e300 {
                 Ok(())
             } else {
                 Err((name.to_string(), format!("{v} must be finite and > 0")))
@@ -112,46 +103,22 @@ impl ControllerConfig {
         positive("kappa_mu", self.kappa_mu)?;
         positive("prior_position_precision", self.prior_position_precision)?;
         positive("prior_velocity_precision", self.prior_velocity_precision)?;
-        positive("control_precision", self.control_precision)?;
-        if let Some(k) = self.kappa_u {
-            positive("kappa_u", k)?;
+        if self.prior_warmup_ticks > 1_000_000_000 {
+            return Err(("prior_warmup_ticks".into(), "must be <= 1e9 ticks".into()));
         }
-        self.gains
-            .validate(n_joints)
-            .map_err(|(f, m)| (format!("gains.{f}"), m))
+        Ok(())
     }
 }
 
-/// What one controller tick produced.
-#[derive(Clone, Debug, PartialEq)]
-pub struct TickReport {
-    /// Joint torques to apply.
-    pub torques: Vec<f64>,
-    /// Free energy at the updated belief (missing and zero-precision channels left out).
-    pub free_energy: f64,
-    /// Innovations y - h(x_hat): readings against the prediction, before the update.
-    pub innovations: Vec<Option<f64>>,
-    /// Residuals y - h(x) after the update (what the precision learners see).
-    pub residuals: Vec<Option<f64>>,
-    /// Posterior-variance correction per channel, c_i = (J H^-1 J')_ii.
-    pub corrections: Vec<f64>,
-    /// Whether the belief stayed finite (false: the update was refused).
-    pub finite: bool,
-}
-
-/// The u-AIC.
-pub struct Controller {
-    config: ControllerConfig,
+/// The u-AIC's belief.
+pub struct Uaic {
+    config: UaicConfig,
     layout: ChannelLayout,
     gp: Arc<GpModel>,
     dt: f64,
     /// Belief x = [mu, mu'] and the previous tick's belief.
     x: DVector<f64>,
     x_prev: DVector<f64>,
-    pid: Pid,
-    /// mu_u (the action belief) for a finite kappa_u.
-    mu_u: Vec<f64>,
-    f_star: Vec<f64>,
     initialised: bool,
     /// Belief updates since the initialisation (drives the prior's warm-up).
     updates: u64,
@@ -169,31 +136,32 @@ pub struct Controller {
     factor: DMatrix<f64>,
     /// The prior residual e_x.
     ex: Vec<f64>,
-    g: [f64; 2],
+    /// The camera model at the update point, and its first-order value at the new belief.
+    g_point: Vec<f64>,
+    g_post: Vec<f64>,
     jac: Vec<f64>,
-    report: TickReport,
+    report: Estimate,
 }
 
-impl Controller {
-    /// A controller for `layout.n_joints` joints at tick length `dt`, with the camera model `gp`.
+impl Uaic {
+    /// A u-AIC belief for `layout.n_joints()` joints at tick length `dt`, with the camera model
+    /// `gp`.
     ///
     /// # Panics
-    /// If the GP does not take one input per joint (validate before).
-    pub fn new(config: ControllerConfig, layout: ChannelLayout, gp: Arc<GpModel>, dt: f64) -> Self {
-        let n = layout.n_joints;
+    /// If the GP does not take one input per joint and give one output per camera output
+    /// (validate before).
+    pub fn new(config: UaicConfig, layout: ChannelLayout, gp: Arc<GpModel>, dt: f64) -> Self {
+        let n = layout.n_joints();
+        let r = layout.camera_outputs();
         assert_eq!(gp.n_inputs, n, "the GP takes one input per joint");
-        assert_eq!(gp.n_outputs, 2, "the camera GP has two outputs");
-        let m = layout.len();
+        assert_eq!(gp.n_outputs, r, "the GP gives one output per camera output");
         Self {
-            pid: Pid::new(config.gains.clone()),
             config,
             layout,
             gp,
             dt,
             x: DVector::zeros(2 * n),
             x_prev: DVector::zeros(2 * n),
-            mu_u: vec![0.0; n],
-            f_star: vec![0.0; n],
             initialised: false,
             updates: 0,
             hessian: DMatrix::zeros(2 * n, 2 * n),
@@ -204,46 +172,25 @@ impl Controller {
             candidate: DVector::zeros(2 * n),
             factor: DMatrix::zeros(2 * n, 2 * n),
             ex: vec![0.0; 2 * n],
-            g: [0.0; 2],
-            jac: vec![0.0; 2 * n],
-            report: TickReport {
-                torques: vec![0.0; n],
-                free_energy: 0.0,
-                innovations: vec![None; m],
-                residuals: vec![None; m],
-                corrections: vec![0.0; m],
-                finite: true,
-            },
+            g_point: vec![0.0; r],
+            g_post: vec![0.0; r],
+            jac: vec![0.0; r * n],
+            report: Estimate::new(&layout),
         }
     }
 
-    pub fn config(&self) -> &ControllerConfig {
+    pub fn config(&self) -> &UaicConfig {
         &self.config
     }
 
-    /// Position belief mu.
-    pub fn mu(&self) -> &[f64] {
-        &self.x.as_slice()[..self.layout.n_joints]
-    }
-
-    /// Velocity belief mu'.
-    pub fn mu_p(&self) -> &[f64] {
-        &self.x.as_slice()[self.layout.n_joints..]
-    }
-
-    /// What the last [`Self::step`] produced.
-    pub fn last_report(&self) -> &TickReport {
-        &self.report
-    }
-
-    /// The PID's integral torque per joint.
-    pub fn integral(&self) -> &[f64] {
-        self.pid.integral()
+    /// The belief x = [mu, mu'].
+    pub fn belief(&self) -> &[f64] {
+        self.x.as_slice()
     }
 
     /// Starts the belief at the first readings (a missing reading starts at 0).
     pub fn initialise(&mut self, readings: &Readings) {
-        let n = self.layout.n_joints;
+        let n = self.layout.n_joints();
         for i in 0..n {
             self.x[i] = readings.get(i).unwrap_or(0.0);
             self.x[n + i] = readings.get(n + i).unwrap_or(0.0);
@@ -268,17 +215,17 @@ impl Controller {
     }
 
     /// The sensory prediction of channel `c` at a state, given the GP output `g` at its mu.
-    fn predict_channel(&self, c: usize, x: &DVector<f64>, g: &[f64; 2]) -> f64 {
+    fn predict_channel(&self, c: usize, x: &DVector<f64>, g: &[f64]) -> f64 {
         match self.layout.channel(c) {
             Channel::Encoder(i) => x[i],
-            Channel::Tachometer(i) => x[self.layout.n_joints + i],
+            Channel::Tachometer(i) => x[self.layout.n_joints() + i],
             Channel::Camera(r) => g[r],
         }
     }
 
     /// Adds w J_c' J_c to the Hessian and w J_c' e to the right-hand side.
     fn accumulate(&mut self, c: usize, w: f64, e: f64) {
-        let n = self.layout.n_joints;
+        let n = self.layout.n_joints();
         match self.layout.channel(c) {
             Channel::Encoder(i) => {
                 self.hessian[(i, i)] += w;
@@ -302,7 +249,7 @@ impl Controller {
 
     /// Fills the prior's Hessian (A' P_x A) into `self.hessian`.
     fn prior_hessian(&mut self) {
-        let n = self.layout.n_joints;
+        let n = self.layout.n_joints();
         let (pm, pv) = self.prior_precisions();
         self.hessian.fill(0.0);
         for i in 0..n {
@@ -325,7 +272,7 @@ impl Controller {
     /// The prior residual e_x at `x` given the previous belief `prev` (paper: x - A prev;
     /// coupled: A x - prev with A = [[I, -dt I], [0, I]]).
     fn prior_residual(&self, x: &DVector<f64>, prev: &DVector<f64>, out: &mut [f64]) {
-        let n = self.layout.n_joints;
+        let n = self.layout.n_joints();
         for i in 0..n {
             let (mu, mv) = (x[i], x[n + i]);
             let (pmu, pmv) = (prev[i], prev[n + i]);
@@ -348,8 +295,9 @@ impl Controller {
         readings: &Readings,
         precisions: &[f64],
     ) -> (f64, Vec<f64>) {
-        let n = self.layout.n_joints;
-        let (mut g, mut jac) = ([0.0; 2], vec![0.0; 2 * n]);
+        let n = self.layout.n_joints();
+        let r = self.layout.camera_outputs();
+        let (mut g, mut jac) = (vec![0.0; r], vec![0.0; r * n]);
         self.gp.predict(&x[..n], &mut g, &mut jac);
         let xv = DVector::from_column_slice(x);
         let mut f = 0.0;
@@ -389,25 +337,25 @@ impl Controller {
         (f, grad)
     }
 
-    /// One control tick: update the belief from `readings` with channel precisions
-    /// `precisions` (0 leaves a channel out), then compute the torques toward `target`.
-    ///
-    /// The first call initialises the belief from the readings.
-    pub fn step(&mut self, readings: &Readings, target: &[f64], precisions: &[f64]) -> &TickReport {
-        let n = self.layout.n_joints;
+    /// One tick: update the belief from `readings` with channel precisions `precisions` (0
+    /// leaves a channel out). The first call initialises the belief from the readings.
+    pub fn step(&mut self, readings: &Readings, precisions: &[f64]) -> &Estimate {
+        let n = self.layout.n_joints();
         let m = self.layout.len();
+        let r = self.layout.camera_outputs();
         debug_assert_eq!(precisions.len(), m);
         if !self.initialised {
             self.initialise(readings);
         }
         let dt = self.dt;
+        self.report.precisions_used.copy_from_slice(precisions);
 
         // Prediction x_hat = A x_{k-1} and the innovations against it.
         for i in 0..n {
             self.x_hat[i] = self.x[i] + dt * self.x[n + i];
             self.x_hat[n + i] = self.x[n + i];
         }
-        let mut g = [0.0; 2];
+        let mut g = std::mem::take(&mut self.g_point);
         self.gp
             .predict(&self.x_hat.as_slice()[..n], &mut g, &mut self.jac);
         for c in 0..m {
@@ -437,6 +385,7 @@ impl Controller {
             }
         }
         if self.factor_hessian().is_none() {
+            self.g_point = g;
             return self.refuse();
         }
         match self.config.update {
@@ -465,6 +414,7 @@ impl Controller {
             }
         }
         if !self.candidate.iter().all(|v| v.is_finite()) {
+            self.g_point = g;
             return self.refuse();
         }
         self.x_prev.copy_from(&self.x);
@@ -474,20 +424,22 @@ impl Controller {
         // prediction there comes from the GP's first-order expansion about the update point:
         // the belief moves well under 1e-2 rad per tick, so the dropped second-order term stays
         // below 1e-5 m, three orders under the camera noise, and a second GP call is saved.
-        for r in 0..2 {
-            let mut v = g[r];
+        for ro in 0..r {
+            let mut v = g[ro];
             for d in 0..n {
-                v += self.jac[r * n + d] * (self.x[d] - self.point[d]);
+                v += self.jac[ro * n + d] * (self.x[d] - self.point[d]);
             }
-            self.g[r] = v;
+            self.g_post[ro] = v;
         }
+        self.g_point = g;
         self.corrections();
-        let gg = self.g;
+        let gg = std::mem::take(&mut self.g_post);
         for c in 0..m {
             self.report.residuals[c] = readings
                 .get(c)
                 .map(|y| y - self.predict_channel(c, &self.x, &gg));
         }
+        self.g_post = gg;
         let mut free_energy = 0.0;
         for c in 0..m {
             if let Some(e) = self.report.residuals[c]
@@ -504,26 +456,7 @@ impl Controller {
             free_energy += 0.5 * (pv * ex[n + i] * ex[n + i] - pv.ln());
         }
         self.ex = ex;
-
-        // Control: f* on the updated belief; u = f* or mu_u descending F.
-        let (mu, mu_p) = self.x.as_slice().split_at(n);
-        self.pid.step(mu, mu_p, target, dt, &mut self.f_star);
-        match self.config.kappa_u {
-            None => self.report.torques.copy_from_slice(&self.f_star),
-            Some(kappa_u) => {
-                let pu = self.config.control_precision;
-                // mu_u <- mu_u - dt kappa_u P_u (mu_u - f*), taken implicitly: stable for any
-                // kappa_u.
-                let a = dt * kappa_u * pu;
-                for i in 0..n {
-                    self.mu_u[i] = (self.mu_u[i] + a * self.f_star[i]) / (1.0 + a);
-                    let e_u = self.mu_u[i] - self.f_star[i];
-                    free_energy += 0.5 * (pu * e_u * e_u - pu.ln());
-                }
-                self.report.torques.copy_from_slice(&self.mu_u);
-            }
-        }
-        self.report.free_energy = free_energy;
+        self.report.free_energy = Some(free_energy);
         self.report.finite = free_energy.is_finite();
         self.updates += 1;
         &self.report
@@ -546,7 +479,7 @@ impl Controller {
 
     /// c_i = (J_i H^-1 J_i')_ii from the last factorised Hessian.
     fn corrections(&mut self) {
-        let n = self.layout.n_joints;
+        let n = self.layout.n_joints();
         let cov = &self.covariance;
         for c in 0..self.layout.len() {
             self.report.corrections[c] = match self.layout.channel(c) {
@@ -566,9 +499,31 @@ impl Controller {
         }
     }
 
-    fn refuse(&mut self) -> &TickReport {
+    fn refuse(&mut self) -> &Estimate {
         self.report.finite = false;
-        self.report.torques.fill(0.0);
         &self.report
+    }
+}
+
+impl Estimator for Uaic {
+    fn update(&mut self, input: &EstimatorInput<'_>) -> &Estimate {
+        self.step(input.readings, input.precisions)
+    }
+
+    fn estimate(&self) -> &Estimate {
+        &self.report
+    }
+
+    fn mu(&self) -> &[f64] {
+        &self.x.as_slice()[..self.layout.n_joints()]
+    }
+
+    fn mu_p(&self) -> &[f64] {
+        &self.x.as_slice()[self.layout.n_joints()..]
+    }
+
+    /// The Laplace posterior covariance H^-1 of the last update.
+    fn covariance(&self) -> Option<&DMatrix<f64>> {
+        Some(&self.covariance)
     }
 }

@@ -1,5 +1,5 @@
 //! f*: the control law inside p(u | x) = N(f*(mu_x, mu_d), P_u^-1): a PID on the beliefs
-//! (METHOD.md section 4; the ECC paper: "converges to a PID").
+//! (docs/method.md, "The control law"; the ECC paper: "converges to a PID").
 //!
 //! `f* = Kp (mu_d - mu) - Kd mu' + I`, with `I <- clamp(I + Ki dt (mu_d - mu), -I_max, I_max)`
 //! (anti-windup by clamping the integral torque). Gains are in SI units, independent of dt.
@@ -21,9 +21,9 @@ pub struct PidGains {
 }
 
 impl PidGains {
-    /// Gains for the paper arm: the prototype's Kp = 250, Kd = diag(100, 20) and integral
-    /// clamp +-50 N m (METHOD.md section 4), with Ki = 150 N m/(rad s) instead of its 50, which
-    /// left joint 1 0.012 rad short of the first target at 7.5 s (results/studies.md).
+    /// Gains for the paper arm: Kp = 250, Kd = diag(100, 20) and integral clamp +-50 N m
+    /// (docs/method.md, "The control law"), with Ki = 150 N m/(rad s): with 50, joint 1 was still
+    /// 0.012 rad short of the first target at 7.5 s (results/studies.md).
     pub fn paper() -> Self {
         Self {
             kp: vec![250.0, 250.0],
@@ -47,8 +47,8 @@ impl PidGains {
                     format!("has {} entries; the arm has {n_joints} joints", v.len()),
                 ));
             }
-            if !v.iter().all(|x| x.is_finite() && *x >= 0.0) {
-                return Err((name, "entries must be finite and >= 0".into()));
+            if !v.iter().all(|x| x.is_finite() && *x >= 0.0 && *x <= 1e12) {
+                return Err((name, "entries must be finite, >= 0 and <= 1e12".into()));
             }
         }
         Ok(())

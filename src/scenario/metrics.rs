@@ -1,0 +1,419 @@
+//! What a run is measured by: an observer of the loop that gathers the belief error, the
+//! detections and each fault's outcome, and the divergence guard.
+//!
+//! A *detection* is an alarm of the method's detector, or, for methods without one, the moment a
+//! channel's health falls below 0.1 (a reporting convention, not a threshold any method uses;
+//! the channel counts again once its health has come back above 0.5). Per fault: the first
+//! detection from its start (and before its end) gives the delay and the isolated channels;
+//! the post-fault MSE is that of its joints (every joint for a camera fault) from its start to
+//! its end. A detection while no fault acts (or within a second after one ended) is a false
+//! alarm.
+
+use super::RunSetup;
+use super::runner::{Observer, Outcome, TickRecord};
+use crate::precision::{self, Detection};
+use crate::sensors::{ChannelLayout, Fault};
+
+/// Health below which a channel counts as detected faulty (methods without a detector).
+pub const DETECTION_HEALTH: f64 = 0.1;
+/// Health above which such a channel counts as recovered and may be detected again.
+pub const RECOVERY_HEALTH: f64 = 0.5;
+/// Longest list of detections a run keeps.
+pub const MAX_DETECTIONS: usize = 10_000;
+/// Grace after a fault ends during which a detection is not a false alarm (s).
+pub const FALSE_ALARM_GRACE: f64 = 1.0;
+
+/// A detection: its time and the channels found faulty.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DetectionEvent {
+    pub t: f64,
+    pub channels: Vec<usize>,
+}
+
+/// How one fault of the scenario went.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FaultOutcome {
+    /// The fault's channels as written (`enc1`, `cam`, ...).
+    pub label: String,
+    /// The kind (`freeze`, `bias`, ...).
+    pub kind: &'static str,
+    pub start: f64,
+    pub end: Option<f64>,
+    /// Joints whose encoder or tachometer the fault hits (0-based).
+    pub joints: Vec<usize>,
+    /// The first detection at or after the start (and before the end).
+    pub detected_at: Option<f64>,
+    pub delay: Option<f64>,
+    /// Channels that detection named, joined by `+`.
+    pub isolated: Option<String>,
+    /// Whether those channels are all the fault's.
+    pub isolation_correct: Option<bool>,
+    /// MSE of (mu - q) over the fault's joints (every joint for a camera fault) during the fault.
+    pub mse_during: Option<f64>,
+}
+
+/// The numbers of one run.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RunResult {
+    /// The method's name (`pl-always`, or a custom estimator's label).
+    pub method: String,
+    pub seed: u64,
+    pub outcome: Outcome,
+    pub ticks_run: u64,
+    /// MSE of (mu - q) per joint over the run.
+    pub mse_per_joint: Vec<f64>,
+    /// MSE per joint from the first fault's start (None without faults).
+    pub mse_post_fault_per_joint: Option<Vec<f64>>,
+    /// Joints whose encoder or tachometer has a fault.
+    pub faulty_joints: Vec<usize>,
+    /// Mean MSE over the faulty joints (None if none).
+    pub mse_faulty: Option<f64>,
+    /// Mean MSE over the other joints (None if none).
+    pub mse_healthy: Option<f64>,
+    /// |q(T) - final target| per joint.
+    pub final_error_per_joint: Vec<f64>,
+    pub max_final_error: f64,
+    /// The first detection (s).
+    pub detected_at: Option<f64>,
+    /// `detector` or `health<0.1` (how detections were found).
+    pub detection_kind: &'static str,
+    /// The channels the first detection named.
+    pub isolated_channel: Option<String>,
+    /// Whether those are channels a fault hit (None without faults or detection).
+    pub isolation_correct: Option<bool>,
+    /// The first detection came before any fault started (or the run has no faults).
+    pub false_alarm: bool,
+    /// Detections while no fault acted.
+    pub false_alarms: usize,
+    /// Every detection (at most [`MAX_DETECTIONS`]).
+    pub detections: Vec<DetectionEvent>,
+    /// One entry per fault of the scenario, in file order.
+    pub faults: Vec<FaultOutcome>,
+    /// Health per channel at the end.
+    pub final_health: Vec<f64>,
+    /// Lowest health per channel over the last 5 s.
+    pub min_health_last_5s: Vec<f64>,
+    /// Channel names, in layout order.
+    pub channels: Vec<String>,
+    /// Wall-clock time of the loop (s); the one non-deterministic number.
+    pub wall_seconds: f64,
+}
+
+impl RunResult {
+    pub fn ticks_per_second(&self) -> f64 {
+        self.ticks_run as f64 / self.wall_seconds.max(1e-12)
+    }
+}
+
+/// Joints whose encoder or tachometer a fault hits.
+pub fn fault_joints(layout: &ChannelLayout, fault: &Fault) -> Vec<usize> {
+    let mut j: Vec<usize> = fault
+        .channels
+        .iter()
+        .filter_map(|&c| layout.channel(c).joint())
+        .collect();
+    j.sort_unstable();
+    j.dedup();
+    j
+}
+
+/// Per-fault accumulation.
+struct FaultWindow {
+    start: u64,
+    end: Option<u64>,
+    joints: Vec<usize>,
+    sq: f64,
+    count: u64,
+}
+
+/// The observer that measures a run.
+pub struct RunMetrics {
+    layout: ChannelLayout,
+    dt: f64,
+    faults: Vec<Fault>,
+    windows: Vec<FaultWindow>,
+    faulty_channels: Vec<usize>,
+    faulty_joints: Vec<usize>,
+    first_fault: Option<u64>,
+    final_target: Vec<f64>,
+    sq: Vec<f64>,
+    sq_post: Vec<f64>,
+    post_count: u64,
+    last_5s_from: u64,
+    min_health_last: Vec<f64>,
+    health: Vec<f64>,
+    /// Health-based detections (methods without a detector), with each channel's arming.
+    health_events: Vec<(u64, usize)>,
+    armed: Vec<bool>,
+    ticks_run: u64,
+}
+
+impl RunMetrics {
+    pub fn new(setup: &RunSetup, nominal: &[f64]) -> Self {
+        let sc = setup.scenario();
+        let layout = setup.layout;
+        let dt = sc.dt;
+        let n = layout.n_joints();
+        let ticks = sc.ticks();
+        let mut faulty_channels: Vec<usize> = setup
+            .faults
+            .iter()
+            .flat_map(|f| f.channels.iter().copied())
+            .collect();
+        faulty_channels.sort_unstable();
+        faulty_channels.dedup();
+        let mut faulty_joints: Vec<usize> = setup
+            .faults
+            .iter()
+            .flat_map(|f| fault_joints(&layout, f))
+            .collect();
+        faulty_joints.sort_unstable();
+        faulty_joints.dedup();
+        let windows = setup
+            .faults
+            .iter()
+            .map(|f| {
+                let joints = fault_joints(&layout, f);
+                FaultWindow {
+                    start: f.start_tick(dt),
+                    end: f.end_tick(dt),
+                    joints: if joints.is_empty() {
+                        (0..n).collect()
+                    } else {
+                        joints
+                    },
+                    sq: 0.0,
+                    count: 0,
+                }
+            })
+            .collect();
+        Self {
+            layout,
+            dt,
+            first_fault: setup.faults.iter().map(|f| f.start_tick(dt)).min(),
+            faults: setup.faults.clone(),
+            windows,
+            faulty_channels,
+            faulty_joints,
+            final_target: sc
+                .targets
+                .last()
+                .expect("validated: one target at least")
+                .q
+                .clone(),
+            sq: vec![0.0; n],
+            sq_post: vec![0.0; n],
+            post_count: 0,
+            last_5s_from: ticks.saturating_sub((5.0 / dt).round() as u64),
+            min_health_last: vec![1.0; layout.len()],
+            health: nominal.iter().map(|_| 1.0).collect(),
+            health_events: Vec::new(),
+            armed: vec![true; layout.len()],
+            ticks_run: 0,
+        }
+    }
+
+    /// The run's result, given how it ended, the final joint positions and the detector's state.
+    pub fn finish(
+        self,
+        method: &str,
+        seed: u64,
+        outcome: Outcome,
+        q_final: &[f64],
+        detection: Option<&Detection>,
+        wall_seconds: f64,
+    ) -> RunResult {
+        let n = self.layout.n_joints();
+        let dt = self.dt;
+        let count = self.ticks_run.max(1) as f64;
+        let mse_per_joint: Vec<f64> = self.sq.iter().map(|s| s / count).collect();
+        let mse_post_fault_per_joint = self.first_fault.map(|_| {
+            self.sq_post
+                .iter()
+                .map(|s| {
+                    if self.post_count > 0 {
+                        s / self.post_count as f64
+                    } else {
+                        f64::NAN
+                    }
+                })
+                .collect()
+        });
+        let mean_over = |joints: &[usize]| {
+            (!joints.is_empty()).then(|| {
+                joints.iter().map(|&j| mse_per_joint[j]).sum::<f64>() / joints.len() as f64
+            })
+        };
+        let healthy_joints: Vec<usize> =
+            (0..n).filter(|j| !self.faulty_joints.contains(j)).collect();
+        let final_error_per_joint: Vec<f64> = (0..n)
+            .map(|i| (q_final[i] - self.final_target[i]).abs())
+            .collect();
+        let max_final_error = final_error_per_joint
+            .iter()
+            .fold(0.0f64, |a, b| if b.is_nan() { f64::NAN } else { a.max(*b) });
+
+        // Detections: the detector's alarms, or health crossings.
+        let (detection_kind, events): (&'static str, Vec<(u64, Vec<usize>)>) = match detection {
+            Some(d) => (
+                "detector",
+                d.alarms
+                    .iter()
+                    .map(|a| (a.tick, a.channels.clone()))
+                    .collect(),
+            ),
+            None => (
+                "health<0.1",
+                self.health_events
+                    .iter()
+                    .map(|&(k, c)| (k, vec![c]))
+                    .collect(),
+            ),
+        };
+        let names = |channels: &[usize]| {
+            channels
+                .iter()
+                .map(|&c| self.layout.name(c))
+                .collect::<Vec<_>>()
+                .join("+")
+        };
+        let first = events.first();
+        let detected_at = first.map(|(k, _)| *k as f64 * dt);
+        let false_alarm = match (first, self.first_fault) {
+            (Some((d, _)), Some(f)) => *d < f,
+            (Some(_), None) => true,
+            (None, _) => false,
+        };
+        let isolated_channel = first.map(|(_, c)| names(c)).filter(|s| !s.is_empty());
+        let isolation_correct = first
+            .filter(|(_, c)| !c.is_empty() && !self.faulty_channels.is_empty())
+            .map(|(_, c)| c.iter().all(|c| self.faulty_channels.contains(c)));
+        let grace = (FALSE_ALARM_GRACE / dt).round() as u64;
+        let false_alarms = events
+            .iter()
+            .filter(|(k, _)| {
+                !self.faults.iter().any(|f| {
+                    *k >= f.start_tick(dt) && f.end_tick(dt).is_none_or(|e| *k < e + grace)
+                })
+            })
+            .count();
+        let faults = self
+            .faults
+            .iter()
+            .zip(&self.windows)
+            .map(|(f, w)| {
+                let hit = events
+                    .iter()
+                    .find(|(k, _)| *k >= w.start && w.end.is_none_or(|e| *k < e));
+                FaultOutcome {
+                    label: f.label.clone(),
+                    kind: f.kind.name(),
+                    start: f.start,
+                    end: f.end,
+                    joints: fault_joints(&self.layout, f),
+                    detected_at: hit.map(|(k, _)| *k as f64 * dt),
+                    delay: hit.map(|(k, _)| (*k - w.start) as f64 * dt),
+                    isolated: hit.map(|(_, c)| names(c)),
+                    isolation_correct: hit.map(|(_, c)| c.iter().all(|c| f.hits(*c))),
+                    mse_during: (w.count > 0)
+                        .then(|| w.sq / (w.count as f64 * w.joints.len() as f64)),
+                }
+            })
+            .collect();
+        let detections = events
+            .iter()
+            .take(MAX_DETECTIONS)
+            .map(|(k, c)| DetectionEvent {
+                t: *k as f64 * dt,
+                channels: c.clone(),
+            })
+            .collect();
+        RunResult {
+            method: method.to_string(),
+            seed,
+            outcome,
+            ticks_run: self.ticks_run,
+            mse_faulty: mean_over(&self.faulty_joints),
+            mse_healthy: mean_over(&healthy_joints),
+            mse_per_joint,
+            mse_post_fault_per_joint,
+            faulty_joints: self.faulty_joints,
+            final_error_per_joint,
+            max_final_error,
+            detected_at,
+            detection_kind,
+            isolated_channel,
+            isolation_correct,
+            false_alarm,
+            false_alarms,
+            detections,
+            faults,
+            final_health: self.health,
+            min_health_last_5s: self.min_health_last,
+            channels: self.layout.names(),
+            wall_seconds,
+        }
+    }
+}
+
+impl Observer for RunMetrics {
+    fn on_tick(&mut self, r: &TickRecord<'_>) {
+        let k = r.tick;
+        self.ticks_run = k + 1;
+        let post = self.first_fault.is_some_and(|f| k >= f);
+        for i in 0..self.sq.len() {
+            let e = r.mu[i] - r.q[i];
+            self.sq[i] += e * e;
+            if post {
+                self.sq_post[i] += e * e;
+            }
+        }
+        if post {
+            self.post_count += 1;
+        }
+        for w in &mut self.windows {
+            if k >= w.start && w.end.is_none_or(|e| k < e) {
+                for &j in &w.joints {
+                    let e = r.mu[j] - r.q[j];
+                    w.sq += e * e;
+                }
+                w.count += 1;
+            }
+        }
+        for (c, (w, nom)) in r.precisions.iter().zip(r.nominal).enumerate() {
+            let h = precision::health(*w, *nom);
+            self.health[c] = h;
+            if self.armed[c] && h < DETECTION_HEALTH {
+                self.armed[c] = false;
+                if self.health_events.len() < MAX_DETECTIONS {
+                    self.health_events.push((k, c));
+                }
+            } else if !self.armed[c] && h > RECOVERY_HEALTH {
+                self.armed[c] = true;
+            }
+            if k >= self.last_5s_from {
+                self.min_health_last[c] = self.min_health_last[c].min(h);
+            }
+        }
+    }
+}
+
+/// Stops a run whose state or belief leaves any sane range.
+pub struct DivergenceGuard;
+
+impl DivergenceGuard {
+    /// Why the run must stop at this tick, if it must.
+    pub fn check(&self, r: &TickRecord<'_>) -> Option<String> {
+        let insane = |v: &[f64], limit: f64| v.iter().any(|x| !x.is_finite() || x.abs() > limit);
+        let reason = if !r.estimate.finite {
+            "the belief update became non-finite"
+        } else if insane(r.q, 1e3) || insane(r.qd, 1e4) {
+            "the arm's state left |q| <= 1e3 rad, |qd| <= 1e4 rad/s"
+        } else if insane(r.mu, 1e3) || insane(r.mu_p, 1e4) {
+            "the belief left |mu| <= 1e3 rad, |mu'| <= 1e4 rad/s"
+        } else {
+            return None;
+        };
+        Some(reason.to_string())
+    }
+}

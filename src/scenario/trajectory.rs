@@ -1,0 +1,296 @@
+//! The trajectory of a run: its column schema (defined once, here, for the writer, the plots and
+//! any reader), a writer that streams rows to a file while the run goes, an in-memory recorder
+//! (optionally decimating, so its memory stays bounded), and a reader.
+//!
+//! Columns: `t`, `q<i>`, `qd<i>`, `mu<i>`, `mu_p<i>`, `target<i>`, `u<i>` (joints 1-based),
+//! `y_<channel>` (NaN when missing), `precision_<channel>`, `health_<channel>`, `F` (NaN where the
+//! estimator defines no free energy), `alarm` (1 once the detector has fired), `isolated`
+//! (channels isolated now), and `d_<group>` (the detector's normalised distance per sensor group,
+//! NaN when not evaluated).
+
+use std::io::Write;
+use std::path::Path;
+
+use super::runner::{Observer, TickRecord};
+use crate::fsio::{self, FsError};
+use crate::precision;
+use crate::sensors::ChannelLayout;
+
+/// Formats an f64 so that it reads back bit for bit (Rust's shortest round-trip form).
+pub fn fmt_f64(v: f64) -> String {
+    format!("{v}")
+}
+
+/// Appends a row of numbers as one CSV line (round-trip form, newline-terminated).
+pub fn format_csv_row(row: &[f64], out: &mut String) {
+    use std::fmt::Write as _;
+    for (i, v) in row.iter().enumerate() {
+        if i > 0 {
+            out.push(',');
+        }
+        let _ = write!(out, "{v}");
+    }
+    out.push('\n');
+}
+
+/// The column names of a layout's trajectory.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrajectorySchema {
+    columns: Vec<String>,
+    n_joints: usize,
+}
+
+impl TrajectorySchema {
+    pub fn new(layout: &ChannelLayout) -> Self {
+        let n = layout.n_joints();
+        let mut columns = vec!["t".to_string()];
+        for prefix in ["q", "qd", "mu", "mu_p", "target", "u"] {
+            columns.extend((1..=n).map(|i| format!("{prefix}{i}")));
+        }
+        let names = layout.names();
+        for prefix in ["y", "precision", "health"] {
+            columns.extend(names.iter().map(|c| format!("{prefix}_{c}")));
+        }
+        columns.extend(["F", "alarm", "isolated"].map(String::from));
+        columns.extend(layout.groups().iter().map(|g| format!("d_{}", g.name())));
+        Self {
+            columns,
+            n_joints: n,
+        }
+    }
+
+    pub fn columns(&self) -> &[String] {
+        &self.columns
+    }
+
+    pub fn len(&self) -> usize {
+        self.columns.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.columns.is_empty()
+    }
+
+    pub fn n_joints(&self) -> usize {
+        self.n_joints
+    }
+
+    /// Index of a column by name.
+    pub fn index(&self, name: &str) -> Option<usize> {
+        self.columns.iter().position(|h| h == name)
+    }
+
+    /// The row of a tick, written into `row` (cleared first).
+    pub fn row(&self, r: &TickRecord<'_>, row: &mut Vec<f64>) {
+        row.clear();
+        row.push(r.t);
+        for v in [r.q, r.qd, r.mu, r.mu_p, r.target, r.torques] {
+            row.extend_from_slice(v);
+        }
+        row.extend(r.readings.values.iter().map(|v| v.unwrap_or(f64::NAN)));
+        row.extend_from_slice(r.precisions);
+        row.extend(
+            r.precisions
+                .iter()
+                .zip(r.nominal)
+                .map(|(w, n)| precision::health(*w, *n)),
+        );
+        row.push(r.free_energy);
+        match r.detection {
+            Some(d) => {
+                row.push(if d.fired() { 1.0 } else { 0.0 });
+                row.push(d.isolated.len() as f64);
+                row.extend(d.normalised_distance.iter().map(|d| d.unwrap_or(f64::NAN)));
+            }
+            None => {
+                row.push(0.0);
+                row.push(0.0);
+                row.extend(r.layout.groups().iter().map(|_| f64::NAN));
+            }
+        }
+        debug_assert_eq!(row.len(), self.columns.len());
+    }
+}
+
+/// Streams every `every`-th tick's row to a writer as CSV (numbers in round-trip form). Memory
+/// stays constant however long the run. The first write error is kept and returned by
+/// [`TrajectoryWriter::finish`].
+pub struct TrajectoryWriter<W: Write> {
+    schema: TrajectorySchema,
+    out: std::io::BufWriter<W>,
+    every: u64,
+    row: Vec<f64>,
+    line: String,
+    error: Option<std::io::Error>,
+    rows: u64,
+}
+
+impl<W: Write> TrajectoryWriter<W> {
+    pub fn new(schema: TrajectorySchema, out: W, every: u64) -> Self {
+        let mut w = Self {
+            out: std::io::BufWriter::with_capacity(1 << 16, out),
+            every: every.max(1),
+            row: Vec::with_capacity(schema.len()),
+            line: String::with_capacity(32 * schema.len()),
+            error: None,
+            rows: 0,
+            schema,
+        };
+        let header = w.schema.columns.join(",") + "\n";
+        if let Err(e) = w.out.write_all(header.as_bytes()) {
+            w.error = Some(e);
+        }
+        w
+    }
+
+    /// Rows written so far.
+    pub fn rows(&self) -> u64 {
+        self.rows
+    }
+
+    /// Flushes and returns the writer, or the first error.
+    pub fn finish(self) -> std::io::Result<W> {
+        if let Some(e) = self.error {
+            return Err(e);
+        }
+        self.out.into_inner().map_err(|e| e.into_error())
+    }
+}
+
+impl<W: Write> Observer for TrajectoryWriter<W> {
+    fn on_tick(&mut self, r: &TickRecord<'_>) {
+        if self.error.is_some() || !r.tick.is_multiple_of(self.every) {
+            return;
+        }
+        self.schema.row(r, &mut self.row);
+        self.line.clear();
+        format_csv_row(&self.row, &mut self.line);
+        if let Err(e) = self.out.write_all(self.line.as_bytes()) {
+            self.error = Some(e);
+        }
+        self.rows += 1;
+    }
+}
+
+/// Rows of a trajectory in memory. Records every `every`-th tick; with a row bound, once it is
+/// reached every other row is dropped and the stride doubles, so memory stays bounded.
+#[derive(Clone, Debug)]
+pub struct TrajectoryRecorder {
+    pub header: Vec<String>,
+    pub rows: Vec<Vec<f64>>,
+    n_joints: usize,
+    schema: TrajectorySchema,
+    every: u64,
+    max_rows: Option<usize>,
+}
+
+impl TrajectoryRecorder {
+    /// Records every tick.
+    pub fn new(layout: &ChannelLayout) -> Self {
+        Self::with_stride(layout, 1)
+    }
+
+    /// Records every `every`-th tick.
+    pub fn with_stride(layout: &ChannelLayout, every: u64) -> Self {
+        let schema = TrajectorySchema::new(layout);
+        Self {
+            header: schema.columns.clone(),
+            rows: Vec::new(),
+            n_joints: layout.n_joints(),
+            schema,
+            every: every.max(1),
+            max_rows: None,
+        }
+    }
+
+    /// Keeps at most `max_rows` rows (>= 2), decimating as the run goes (for plots).
+    pub fn bounded(layout: &ChannelLayout, max_rows: usize) -> Self {
+        Self {
+            max_rows: Some(max_rows.max(2)),
+            ..Self::new(layout)
+        }
+    }
+
+    pub fn n_joints(&self) -> usize {
+        self.n_joints
+    }
+
+    /// Ticks between the rows kept.
+    pub fn stride(&self) -> u64 {
+        self.every
+    }
+
+    /// Index of a column by name.
+    pub fn column(&self, name: &str) -> Option<usize> {
+        self.header.iter().position(|h| h == name)
+    }
+
+    /// A column's values.
+    pub fn series(&self, name: &str) -> Option<Vec<f64>> {
+        let c = self.column(name)?;
+        Some(self.rows.iter().map(|r| r[c]).collect())
+    }
+
+    /// Reads a trajectory CSV written by [`TrajectoryWriter`].
+    pub fn read_csv(path: &Path) -> Result<Self, FsError> {
+        let text = fsio::read_text(path, fsio::MAX_TRAJECTORY_BYTES)?;
+        let bad = |line: usize, what: &str| FsError::BadOutput {
+            path: path.to_path_buf(),
+            message: format!("line {line}: {what}"),
+        };
+        let mut lines = text.lines();
+        let header: Vec<String> = lines
+            .next()
+            .ok_or_else(|| bad(1, "no header"))?
+            .split(',')
+            .map(String::from)
+            .collect();
+        let n_joints = header.iter().filter(|h| h.starts_with("mu_p")).count();
+        let mut rows = Vec::new();
+        for (i, line) in lines.enumerate() {
+            let row: Vec<f64> = line
+                .split(',')
+                .map(|v| v.parse::<f64>())
+                .collect::<Result<_, _>>()
+                .map_err(|_| bad(i + 2, "not a number"))?;
+            if row.len() != header.len() {
+                return Err(bad(i + 2, "wrong number of columns"));
+            }
+            rows.push(row);
+        }
+        let schema = TrajectorySchema {
+            columns: header.clone(),
+            n_joints,
+        };
+        Ok(Self {
+            header,
+            rows,
+            n_joints,
+            schema,
+            every: 1,
+            max_rows: None,
+        })
+    }
+}
+
+impl Observer for TrajectoryRecorder {
+    fn on_tick(&mut self, r: &TickRecord<'_>) {
+        if !r.tick.is_multiple_of(self.every) {
+            return;
+        }
+        let mut row = Vec::with_capacity(self.schema.len());
+        self.schema.row(r, &mut row);
+        self.rows.push(row);
+        if let Some(max) = self.max_rows
+            && self.rows.len() >= max
+        {
+            let mut keep = 0;
+            for i in (0..self.rows.len()).step_by(2) {
+                self.rows.swap(keep, i);
+                keep += 1;
+            }
+            self.rows.truncate(keep);
+            self.every *= 2;
+        }
+    }
+}

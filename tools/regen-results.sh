@@ -1,0 +1,17 @@
+#!/usr/bin/env bash
+# Regenerates the committed Monte Carlo tables: every bundled scenario at 20 seeds, every
+# method, detector calibrated on the fly (50 healthy runs, cache disabled so the timings in the
+# logs are honest). Usage: tools/regen-results.sh [SCENARIO_NAME ...]
+set -euo pipefail
+cd "$(dirname "$0")/.."
+cargo build --release --quiet
+export AIFT_CACHE_DIR=off
+names=("$@")
+if [ ${#names[@]} -eq 0 ]; then
+    for f in assets/scenarios/*.toml; do names+=("$(basename "$f" .toml)"); done
+fi
+for n in "${names[@]}"; do
+    echo "== $n" >&2
+    ./target/release/aift table "assets/scenarios/$n.toml" --seeds 20 --out "results/$n" --force \
+        > "results/$n.log" 2>&1
+done
