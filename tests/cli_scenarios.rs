@@ -428,7 +428,7 @@ fn bench_prints_name_value_lines() {
 #[test]
 fn a_diverging_run_is_a_result_not_an_error() {
     let tmp = tempfile::tempdir().unwrap();
-    // The paper's explicit gradient step with physical precisions: unstable (METHOD.md section 4).
+    // The paper's explicit gradient step with physical precisions: unstable (docs/method.md, "The u-AIC").
     let out = aift(
         &[
             "run",

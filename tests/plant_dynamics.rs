@@ -1,4 +1,4 @@
-//! The rapier plant against the closed-form 2-link dynamics of METHOD.md section 1.
+//! The rapier plant against the closed-form 2-link dynamics of docs/method.md, "Plant".
 
 mod common;
 

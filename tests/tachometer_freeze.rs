@@ -1,4 +1,4 @@
-//! A frozen tachometer: the open case (METHOD.md section 10). Measured, not solved: the learners
+//! A frozen tachometer: the open case (docs/method.md, "Studies"). Measured, not solved: the learners
 //! blame the healthy encoder and camera. What holds, and is checked here: no fault tolerance
 //! survives it, and recovery needs the coupled prediction (even the oracle fails without it).
 

@@ -1,5 +1,5 @@
 //! The camera's generative model g_v: Gaussian-process regression from joint angles to the
-//! camera's two image coordinates, with a closed-form Jacobian (METHOD.md section 3, after the
+//! camera's outputs, with a closed-form Jacobian (docs/method.md, "Camera model"; after the
 //! ECC paper's eqs. 13-14).
 //!
 //! Kernel: squared-exponential with one length scale per joint (ARD), shared by both outputs,

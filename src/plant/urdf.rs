@@ -1,6 +1,6 @@
 //! Reading a URDF into an engine-independent, validated [`ArmModel`].
 //!
-//! Our own loader on `urdf-rs` rather than `rapier3d-urdf` (METHOD.md section 8): that crate is
+//! Our own loader on `urdf-rs` rather than `rapier3d-urdf` (docs/method.md, "Plant"): that crate is
 //! f32-only, ignores `<dynamics>` and the inertial frame's rotation, accepts massless links and
 //! panics on some bad files. Here every defect becomes a typed [`PlantError`] naming the file and
 //! the element.

@@ -1,7 +1,7 @@
 //! The virtual camera: a pinhole looking at the arm, with radial (barrel) distortion, and
 //! occlusion by the arm's own collision shapes.
 //!
-//! Model (METHOD.md section 2, the formula's units are ours): the end effector p is expressed in
+//! Model (docs/method.md, "Sensors"; the formula's units are ours): the end effector p is expressed in
 //! the camera frame, divided by its depth and scaled back to metres at a reference depth
 //! (perspective divide), then distorted about the optical centre c:
 //! `p_d = c + (p - c)(1 + K1 r^2 + K2 r^4 + K3 r^6)`, r = |p - c| in metres (Brown-Conrady).

@@ -8,7 +8,7 @@ pub fn repo(path: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(path)
 }
 
-/// The paper's 2-DOF arm in closed form (METHOD.md section 1), the oracle for the physics.
+/// The paper's 2-DOF arm in closed form (docs/method.md, "Plant"), the oracle for the physics.
 #[derive(Clone, Copy, Debug)]
 pub struct PaperArm {
     pub l1: f64,
