@@ -51,8 +51,8 @@ pub enum Prediction {
 }
 
 /// Settings of the u-AIC's belief. Defaults: Gauss-Newton with eta = 1, coupled prediction,
-/// P_mu = 1e8 (100x the encoders' precision: docs/method.md, "Prior scale"), P_mu' = 1e4, a
-/// 100-tick warm-up of the prior.
+/// P_mu = 1e8 and P_mu' = 25 (an acceleration bound of 200 rad/s^2 at dt = 1 ms:
+/// docs/method.md, "Prior scale"), a 100-tick warm-up of the prior.
 #[derive(Clone, Debug, PartialEq)]
 pub struct UaicConfig {
     pub update: UpdateScheme,
@@ -80,7 +80,7 @@ impl Default for UaicConfig {
             kappa_mu: 200.0,
             prediction: Prediction::Coupled,
             prior_position_precision: 1e8,
-            prior_velocity_precision: 1e4,
+            prior_velocity_precision: 25.0,
             prior_warmup_ticks: 100,
         }
     }

@@ -431,6 +431,51 @@ impl Arm {
         self.world.step();
     }
 
+    /// The joint-space mass matrix M(q) and gravity torque G(q) at rest at `q`, measured from
+    /// the simulator itself: one step from rest gives qd = dt (M + dt D)^-1 (tau - G) (tested in
+    /// `tests/plant_dynamics.rs`), so n + 1 probing steps with small torques recover M and G.
+    /// The arm's state is restored afterwards.
+    pub fn probe_dynamics(&mut self, q: &[f64], dt: f64) -> (DMatrix<f64>, Vec<f64>) {
+        let n = self.n_joints();
+        let (q_saved, qd_saved) = self.state();
+        let saved_torques = self.torques.clone();
+        let zeros = vec![0.0; n];
+        let response = |arm: &mut Self, tau: &[f64]| {
+            arm.set_state(q, &zeros);
+            arm.torques.copy_from_slice(tau);
+            arm.step(dt);
+            arm.state().1
+        };
+        let free = response(self, &zeros);
+        // Small probing torques stay clear of effort limits; the response is linear in them.
+        let eps = 1e-3;
+        let mut inverse = DMatrix::zeros(n, n);
+        for i in 0..n {
+            let mut tau = zeros.clone();
+            tau[i] = eps;
+            let qd = response(self, &tau);
+            for r in 0..n {
+                inverse[(r, i)] = (qd[r] - free[r]) / (dt * eps);
+            }
+        }
+        let mut m = inverse
+            .try_inverse()
+            .unwrap_or_else(|| DMatrix::identity(n, n));
+        for (i, joint) in self.model.joints.iter().enumerate() {
+            m[(i, i)] -= dt * joint.damping;
+        }
+        let m = (&m + m.transpose()) * 0.5;
+        let free_v = nalgebra::DVector::from_column_slice(&free);
+        let mut md = m.clone();
+        for (i, joint) in self.model.joints.iter().enumerate() {
+            md[(i, i)] += dt * joint.damping;
+        }
+        let g: Vec<f64> = (-(md * free_v) / dt).iter().copied().collect();
+        self.set_state(&q_saved, &qd_saved);
+        self.torques = saved_torques;
+        (m, g)
+    }
+
     /// World pose of a body (index into [`ArmModel::bodies`]).
     pub fn body_pose(&self, body: usize) -> Isometry3<f64> {
         to_isometry(self.world.bodies[self.bodies[body]].position())

@@ -72,7 +72,7 @@ pub enum PlantError {
         link: String,
         root: String,
     },
-    #[error("{path}: link '{link}': <inertial><mass value> = {mass} must be finite and > 0")]
+    #[error("{path}: link '{link}': <inertial><mass value> = {mass} must be finite and >= 0")]
     BadMass {
         path: PathBuf,
         link: String,
@@ -83,6 +83,14 @@ pub enum PlantError {
         path: PathBuf,
         link: String,
         reason: String,
+    },
+    #[error("{path}: joint '{joint}': {element} {attribute} = {value} must be >= 0")]
+    Negative {
+        path: PathBuf,
+        joint: String,
+        element: &'static str,
+        attribute: &'static str,
+        value: f64,
     },
     #[error("{path}: joint '{joint}': <axis xyz> is the zero vector")]
     ZeroAxis { path: PathBuf, joint: String },
@@ -140,6 +148,7 @@ impl PlantError {
             | Self::Disconnected { path, .. }
             | Self::BadMass { path, .. }
             | Self::BadInertia { path, .. }
+            | Self::Negative { path, .. }
             | Self::ZeroAxis { path, .. }
             | Self::BadLimit { path, .. }
             | Self::UnsupportedJoint { path, .. }

@@ -12,4 +12,6 @@ pub(crate) use arm::to_dvec;
 pub use arm::{Arm, ArmCollider, ArmOptions};
 pub use error::PlantError;
 pub use open_loop::{OpenLoopSample, open_loop_header, run_open_loop};
-pub use urdf::{ArmModel, JointKind, load_urdf, parse_urdf};
+pub use urdf::{
+    ArmModel, JointKind, UrdfOptions, load_urdf, load_urdf_with, parse_urdf, parse_urdf_with,
+};

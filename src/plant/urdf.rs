@@ -169,8 +169,22 @@ impl ArmModel {
     }
 }
 
+/// How a URDF is read.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct UrdfOptions {
+    /// Raise a principal moment of an inertia that breaks the triangle inequality just enough
+    /// to satisfy it (with a warning naming the link), as MuJoCo's `balanceinertia` repairs such
+    /// files; without it such a file is refused.
+    pub balance_inertia: bool,
+}
+
 /// Reads and validates a URDF file.
 pub fn load_urdf(path: &Path) -> Result<ArmModel, PlantError> {
+    load_urdf_with(path, &UrdfOptions::default())
+}
+
+/// Reads and validates a URDF file with options.
+pub fn load_urdf_with(path: &Path, options: &UrdfOptions) -> Result<ArmModel, PlantError> {
     let bytes =
         crate::fsio::read_bounded(path, crate::fsio::MAX_URDF_BYTES).map_err(|e| match e {
             crate::fsio::FsError::Read { path, source } => PlantError::Unreadable { path, source },
@@ -179,11 +193,20 @@ pub fn load_urdf(path: &Path) -> Result<ArmModel, PlantError> {
     let text = String::from_utf8(bytes).map_err(|_| PlantError::NotText {
         path: path.to_path_buf(),
     })?;
-    parse_urdf(&text, path)
+    parse_urdf_with(&text, path, options)
 }
 
 /// Parses and validates URDF text; `path` is used in messages only.
 pub fn parse_urdf(text: &str, path: &Path) -> Result<ArmModel, PlantError> {
+    parse_urdf_with(text, path, &UrdfOptions::default())
+}
+
+/// Parses and validates URDF text with options; `path` is used in messages only.
+pub fn parse_urdf_with(
+    text: &str,
+    path: &Path,
+    options: &UrdfOptions,
+) -> Result<ArmModel, PlantError> {
     if text.trim().is_empty() {
         return Err(PlantError::Empty {
             path: path.to_path_buf(),
@@ -207,7 +230,7 @@ pub fn parse_urdf(text: &str, path: &Path) -> Result<ArmModel, PlantError> {
         path: path.to_path_buf(),
         message: e.to_string(),
     })?;
-    build_model(&robot, &scanned, path)
+    build_model(&robot, &scanned, path, options)
 }
 
 /// What the streaming pass learned beyond the numbers it checked.
@@ -290,6 +313,12 @@ pub(crate) fn scan(text: &str, path: &Path) -> Result<Scan, PlantError> {
             if name != "robot" {
                 return Err(xml_error(format!(
                     "the root element is <{name}>, expected <robot>"
+                )));
+            }
+            if saw_root {
+                return Err(xml_error(format!(
+                    "near line {}: a second <robot> element; a URDF describes one robot",
+                    line_of(text, position)
                 )));
             }
             saw_root = true;
@@ -393,16 +422,24 @@ fn isometry(pose: &urdf_rs::Pose) -> Isometry3<f64> {
     )
 }
 
-/// Validates one link's inertia tensor (in its inertial frame).
-fn check_inertia(tensor: &Matrix3<f64>, link: &str, path: &Path) -> Result<(), PlantError> {
+/// Validates one link's inertia tensor (in its inertial frame); with `balance`, a tensor that
+/// breaks the triangle inequality has its middle principal moment raised just enough
+/// (e1 = e2 - e0), and the repaired tensor and a warning are returned.
+fn check_inertia(
+    tensor: &Matrix3<f64>,
+    link: &str,
+    path: &Path,
+    balance: bool,
+) -> Result<(Matrix3<f64>, Option<String>), PlantError> {
     let bad = |reason: String| PlantError::BadInertia {
         path: path.to_path_buf(),
         link: link.to_string(),
         reason,
     };
-    let eig = tensor.symmetric_eigen().eigenvalues;
-    let mut e = [eig[0], eig[1], eig[2]];
-    e.sort_by(f64::total_cmp);
+    let eigen = tensor.symmetric_eigen();
+    let mut order = [0usize, 1, 2];
+    order.sort_by(|&a, &b| eigen.eigenvalues[a].total_cmp(&eigen.eigenvalues[b]));
+    let e = order.map(|i| eigen.eigenvalues[i]);
     if e[0] <= 0.0 {
         return Err(bad(format!(
             "is not positive definite (principal moments {:.6e}, {:.6e}, {:.6e})",
@@ -410,12 +447,30 @@ fn check_inertia(tensor: &Matrix3<f64>, link: &str, path: &Path) -> Result<(), P
         )));
     }
     if e[0] + e[1] < e[2] * (1.0 - TRIANGLE_TOLERANCE) {
-        return Err(bad(format!(
-            "breaks the triangle inequality: principal moments {:.6e} + {:.6e} < {:.6e}",
-            e[0], e[1], e[2]
-        )));
+        if !balance {
+            return Err(bad(format!(
+                "breaks the triangle inequality: principal moments {:.6e} + {:.6e} < {:.6e} \
+                 (no rigid body has such an inertia; `robot.balance_inertia = true`, or \
+                 `aift check-urdf --balance-inertia`, raises the middle moment just enough, as \
+                 MuJoCo's balanceinertia repairs such files)",
+                e[0], e[1], e[2]
+            )));
+        }
+        let mut values = eigen.eigenvalues;
+        values[order[1]] = e[2] - e[0];
+        let repaired =
+            eigen.eigenvectors * Matrix3::from_diagonal(&values) * eigen.eigenvectors.transpose();
+        let warning = format!(
+            "link '{link}': inertia balanced: principal moments {:.6e}, {:.6e}, {:.6e} broke the \
+             triangle inequality; the middle one was raised to {:.6e}",
+            e[0],
+            e[1],
+            e[2],
+            e[2] - e[0]
+        );
+        return Ok((repaired, Some(warning)));
     }
-    Ok(())
+    Ok((*tensor, None))
 }
 
 /// Validation and the merge of fixed joints into bodies.
@@ -423,6 +478,7 @@ pub(crate) fn build_model(
     robot: &urdf_rs::Robot,
     scanned: &Scan,
     path: &Path,
+    options: &UrdfOptions,
 ) -> Result<ArmModel, PlantError> {
     let p = || path.to_path_buf();
     let mut warnings = Vec::new();
@@ -597,6 +653,22 @@ pub(crate) fn build_model(
                     body_top.push(child);
                     link_body[child] = Some((new_body, Isometry3::identity()));
                     let dynamics = joint.dynamics.clone().unwrap_or_default();
+                    for (element, attribute, value) in [
+                        ("<dynamics>", "damping", dynamics.damping),
+                        ("<dynamics>", "friction", dynamics.friction),
+                        ("<limit>", "effort", lim.effort),
+                        ("<limit>", "velocity", lim.velocity),
+                    ] {
+                        if value < 0.0 {
+                            return Err(PlantError::Negative {
+                                path: p(),
+                                joint: joint.name.clone(),
+                                element,
+                                attribute,
+                                value,
+                            });
+                        }
+                    }
                     joints.push(JointSpec {
                         name: joint.name.clone(),
                         kind,
@@ -647,23 +719,39 @@ pub(crate) fn build_model(
             let (_, pose) = link_body[l].expect("every link is placed");
             let has_inertial = scanned.links_with_inertial.contains(&link.name);
             let mut own_mass = 0.0;
-            if has_inertial {
-                let inertial = &link.inertial;
-                let mass = inertial.mass.value;
-                if !(mass.is_finite() && mass > 0.0) {
-                    return Err(PlantError::BadMass {
-                        path: p(),
-                        link: link.name.clone(),
-                        mass,
-                    });
+            let mass = link.inertial.mass.value;
+            if has_inertial && !(mass.is_finite() && mass >= 0.0) {
+                return Err(PlantError::BadMass {
+                    path: p(),
+                    link: link.name.clone(),
+                    mass,
+                });
+            }
+            // A massless link (a fixed root, a flange or tool frame) adds nothing; a moving body
+            // left without mass is refused below.
+            if has_inertial && mass == 0.0 {
+                let i = &link.inertial.inertia;
+                if [i.ixx, i.iyy, i.izz, i.ixy, i.ixz, i.iyz]
+                    .iter()
+                    .any(|v| *v != 0.0)
+                {
+                    warnings.push(format!(
+                        "link '{}': mass 0 with a non-zero inertia; the inertia is ignored",
+                        link.name
+                    ));
                 }
+            }
+            if has_inertial && mass > 0.0 {
+                let inertial = &link.inertial;
                 let i = &inertial.inertia;
                 let tensor = Matrix3::new(
                     i.ixx, i.ixy, i.ixz, //
                     i.ixy, i.iyy, i.iyz, //
                     i.ixz, i.iyz, i.izz,
                 );
-                check_inertia(&tensor, &link.name, path)?;
+                let (tensor, warning) =
+                    check_inertia(&tensor, &link.name, path, options.balance_inertia)?;
+                warnings.extend(warning);
                 let frame = pose * isometry(&inertial.origin);
                 let rot = frame.rotation.to_rotation_matrix();
                 let rotated = rot.matrix() * tensor * rot.matrix().transpose();

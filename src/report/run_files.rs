@@ -106,6 +106,10 @@ pub fn resolved_scenario(
     let mut s = setup.scenario().clone();
     s.precision.method = method;
     s.seed = seed;
+    // Derived values pinned, so the file runs the same even if a default changes.
+    let (pm, pv) = s.controller.prior_precisions(s.dt);
+    s.controller.prior_position_precision = Some(pm);
+    s.controller.prior_velocity_precision = Some(pv);
     s.robot.urdf = PathBuf::from(ROBOT);
     s.gp.model = Some(PathBuf::from(GP_MODEL));
     s.detector.calibration = with_calibration.then(|| PathBuf::from(CALIBRATION));

@@ -71,7 +71,7 @@ pub fn bench(setup: &RunSetup, ticks: u64) -> Result<Vec<Figure>, ScenarioError>
 
     // Controller: one belief update (GP included) and f*, on fixed readings.
     let nominal: Vec<f64> = super::runner::nominal_precisions(sensors.sigmas());
-    let mut belief = Uaic::new(sc.controller.uaic(), layout, setup.gp.clone(), dt);
+    let mut belief = Uaic::new(sc.controller.uaic(dt), layout, setup.gp.clone(), dt);
     let mut control = crate::control::Control::new(&sc.controller.control());
     let zeros = vec![0.0; n];
     let start = Instant::now();

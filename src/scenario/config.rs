@@ -89,12 +89,22 @@ pub struct RobotConfig {
     pub gravity: [f64; 3],
     #[serde(default = "default_iterations")]
     pub solver_iterations: usize,
+    /// Repair inertias that break the triangle inequality (see [`crate::plant::UrdfOptions`]).
+    #[serde(default)]
+    pub balance_inertia: bool,
 }
 
 /// Most solver iterations (substeps) per tick.
 pub const MAX_SOLVER_ITERATIONS: usize = 1000;
 
 impl RobotConfig {
+    /// How the URDF is read.
+    pub fn urdf_options(&self) -> crate::plant::UrdfOptions {
+        crate::plant::UrdfOptions {
+            balance_inertia: self.balance_inertia,
+        }
+    }
+
     /// The simulated arm's options.
     pub fn arm_options(&self) -> crate::plant::ArmOptions {
         crate::plant::ArmOptions {
@@ -179,10 +189,14 @@ pub struct ControllerConfig {
     /// Gradient-descent gain kappa_mu (1/s), used by `update = "gradient"`.
     pub kappa_mu: f64,
     pub prediction: Prediction,
-    /// Precision of the position prior P_mu (1/rad^2).
-    pub prior_position_precision: f64,
-    /// Precision of the velocity prior P_mu' (s^2/rad^2).
-    pub prior_velocity_precision: f64,
+    /// The joint acceleration (rad/s^2) the state prior treats as one standard deviation: the
+    /// prior precisions default to P_mu = 1 / (a dt^2 / 2)^2 and P_mu' = 1 / (a dt)^2
+    /// (docs/method.md, "Prior scale"). 200 gives P_mu = 1e8 and P_mu' = 25 at dt = 1 ms.
+    pub acceleration_bound: f64,
+    /// Precision of the position prior P_mu (1/rad^2); absent: from `acceleration_bound`.
+    pub prior_position_precision: Option<f64>,
+    /// Precision of the velocity prior P_mu' (s^2/rad^2); absent: from `acceleration_bound`.
+    pub prior_velocity_precision: Option<f64>,
     /// Ticks over which the prior's precisions ramp up (0: no ramp).
     pub prior_warmup_ticks: u64,
     /// Finite action gain kappa_u (1/s); absent: u = f* (the authors' kappa_u -> infinity).
@@ -191,6 +205,9 @@ pub struct ControllerConfig {
     pub control_precision: f64,
     pub gains: PidGains,
 }
+
+/// The default acceleration bound of the state prior (rad/s^2).
+pub const DEFAULT_ACCELERATION_BOUND: f64 = 200.0;
 
 impl Default for ControllerConfig {
     fn default() -> Self {
@@ -201,8 +218,9 @@ impl Default for ControllerConfig {
             step: b.step,
             kappa_mu: b.kappa_mu,
             prediction: b.prediction,
-            prior_position_precision: b.prior_position_precision,
-            prior_velocity_precision: b.prior_velocity_precision,
+            acceleration_bound: DEFAULT_ACCELERATION_BOUND,
+            prior_position_precision: None,
+            prior_velocity_precision: None,
             prior_warmup_ticks: b.prior_warmup_ticks,
             kappa_u: c.kappa_u,
             control_precision: c.control_precision,
@@ -212,15 +230,28 @@ impl Default for ControllerConfig {
 }
 
 impl ControllerConfig {
-    /// The u-AIC's belief settings.
-    pub fn uaic(&self) -> UaicConfig {
+    /// The state prior's precisions (P_mu, P_mu') at tick `dt`: as given, else from the
+    /// acceleration bound a: P_mu = 1 / (a dt^2 / 2)^2, P_mu' = 1 / (a dt)^2.
+    pub fn prior_precisions(&self, dt: f64) -> (f64, f64) {
+        let a = self.acceleration_bound;
+        (
+            self.prior_position_precision
+                .unwrap_or_else(|| 1.0 / (0.5 * a * dt * dt).powi(2)),
+            self.prior_velocity_precision
+                .unwrap_or_else(|| 1.0 / (a * dt).powi(2)),
+        )
+    }
+
+    /// The u-AIC's belief settings at tick `dt`.
+    pub fn uaic(&self, dt: f64) -> UaicConfig {
+        let (pm, pv) = self.prior_precisions(dt);
         UaicConfig {
             update: self.update,
             step: self.step,
             kappa_mu: self.kappa_mu,
             prediction: self.prediction,
-            prior_position_precision: self.prior_position_precision,
-            prior_velocity_precision: self.prior_velocity_precision,
+            prior_position_precision: pm,
+            prior_velocity_precision: pv,
             prior_warmup_ticks: self.prior_warmup_ticks,
         }
     }
@@ -234,9 +265,17 @@ impl ControllerConfig {
         }
     }
 
-    /// Checks both parts for an arm of `n_joints`; returns the offending field and why.
-    pub fn validate(&self, n_joints: usize) -> Result<(), (String, String)> {
-        self.uaic().validate()?;
+    /// Checks both parts for an arm of `n_joints` at tick `dt`; returns the offending field and
+    /// why.
+    pub fn validate(&self, n_joints: usize, dt: f64) -> Result<(), (String, String)> {
+        let a = self.acceleration_bound;
+        if !(a.is_finite() && a > 0.0 && a <= 1e9) {
+            return Err((
+                "acceleration_bound".into(),
+                format!("{a} must be finite, > 0 and <= 1e9 rad/s^2"),
+            ));
+        }
+        self.uaic(dt).validate()?;
         self.control().validate(n_joints)
     }
 }
@@ -516,7 +555,7 @@ impl Scenario {
             }
         }
         self.controller
-            .validate(n_joints)
+            .validate(n_joints, self.dt)
             .map_err(|(f, m)| bad(&format!("controller.{f}"), m))?;
         let p = &self.precision;
         positive("precision.kappa_zeta", p.kappa_zeta)?;

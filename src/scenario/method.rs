@@ -173,7 +173,7 @@ pub fn build(method: Method, ctx: &MethodContext<'_>) -> Result<MethodParts, Sce
     let bounds = p.bounds();
     let uaic = || -> Box<dyn Estimator> {
         Box::new(Uaic::new(
-            sc.controller.uaic(),
+            sc.controller.uaic(sc.dt),
             *ctx.layout,
             ctx.setup.gp.clone(),
             sc.dt,

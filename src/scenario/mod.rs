@@ -10,6 +10,7 @@
 pub mod bench;
 pub mod calibrate;
 pub mod config;
+pub mod init;
 pub mod method;
 pub mod metrics;
 pub mod runner;
@@ -159,10 +160,12 @@ impl LoadedScenario {
                 field: "robot.urdf".into(),
                 message: e.to_string(),
             })?;
-        plant::parse_urdf(&text, &path).map_err(|e| ScenarioError::Robot {
-            path: self.path.clone(),
-            field: "robot.urdf",
-            source: Box::new(e),
+        plant::parse_urdf_with(&text, &path, &self.scenario.robot.urdf_options()).map_err(|e| {
+            ScenarioError::Robot {
+                path: self.path.clone(),
+                field: "robot.urdf",
+                source: Box::new(e),
+            }
         })
     }
 }

@@ -29,6 +29,27 @@ pub enum Command {
     TrainGp(TrainGpArgs),
     /// Measure the cost of each stage and of the closed loop.
     Bench(BenchArgs),
+    /// Write a healthy scenario for any serial URDF arm, every value derived from the arm.
+    Init(InitArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct InitArgs {
+    /// The URDF of the arm.
+    #[arg(long)]
+    pub urdf: PathBuf,
+    /// End-effector link (default: `ee`, else the last link of the chain).
+    #[arg(long)]
+    pub ee: Option<String>,
+    /// Repair inertias that break the triangle inequality.
+    #[arg(long)]
+    pub balance_inertia: bool,
+    /// The scenario file to write.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Replace an existing file.
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// The scenario and overrides every scenario command takes.
@@ -124,6 +145,10 @@ pub struct CheckUrdfArgs {
     /// End-effector link to check and report.
     #[arg(long)]
     pub ee: Option<String>,
+    /// Repair inertias that break the triangle inequality (raise the middle principal moment
+    /// just enough), with a warning naming the link.
+    #[arg(long)]
+    pub balance_inertia: bool,
 }
 
 /// A comma-separated list of finite numbers, e.g. `-1.2,0.8`.
@@ -170,6 +195,9 @@ pub struct SimulateArgs {
     /// Solver iterations (substeps) per step.
     #[arg(long)]
     pub iterations: Option<usize>,
+    /// Repair inertias that break the triangle inequality.
+    #[arg(long)]
+    pub balance_inertia: bool,
     /// Output CSV file.
     #[arg(long)]
     pub out: PathBuf,

@@ -13,8 +13,8 @@ use aift::report::{self, ReportError, run_files, table_files};
 use aift::scenario::{self, LoadedScenario, Method, RunSetup, calibrate, table};
 
 use crate::args::{
-    BenchArgs, CalibrateArgs, CheckUrdfArgs, Cli, Command, RunArgs, ScenarioArgs, SimulateArgs,
-    TableArgs, TrainGpArgs,
+    BenchArgs, CalibrateArgs, CheckUrdfArgs, Cli, Command, InitArgs, RunArgs, ScenarioArgs,
+    SimulateArgs, TableArgs, TrainGpArgs,
 };
 
 /// A failed command: the error and the exit code it maps to.
@@ -79,7 +79,81 @@ pub fn dispatch(cli: Cli) -> Result<(), Failure> {
         Command::Calibrate(args) => calibrate_cmd(args),
         Command::TrainGp(args) => train_gp(args),
         Command::Bench(args) => bench(args),
+        Command::Init(args) => init(args),
     }
+}
+
+fn init(args: InitArgs) -> Result<(), Failure> {
+    if args.out.exists() && !args.force {
+        return Err(bad_input(anyhow!(
+            "{} exists; pass --force to replace it",
+            args.out.display()
+        )));
+    }
+    let staged = stage(&args.out, OutputKind::File, true)?;
+    // The scenario names its URDF relative to its own folder.
+    let out_dir = args
+        .out
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let urdf_in_scenario = relative_path(&args.urdf, out_dir);
+    let name = args
+        .out
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "scenario".into())
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || "_-.".contains(c) {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    let text = scenario::init::init_scenario(
+        &args.urdf,
+        &scenario::init::InitOptions {
+            ee_link: args.ee.clone(),
+            balance_inertia: args.balance_inertia,
+            urdf_in_scenario,
+            name,
+        },
+    )
+    .map_err(bad_input)?;
+    std::fs::write(staged.path(), &text).map_err(|source| {
+        file_failure(FsError::Write {
+            path: args.out.clone(),
+            source,
+        })
+    })?;
+    staged.commit().map_err(file_failure)?;
+    println!(
+        "wrote {} for {}; run it with `aift run {}`",
+        args.out.display(),
+        args.urdf.display(),
+        args.out.display()
+    );
+    Ok(())
+}
+
+/// `path` relative to `base` where both resolve; else `path` made absolute.
+fn relative_path(path: &Path, base: &Path) -> String {
+    let (Ok(p), Ok(b)) = (path.canonicalize(), base.canonicalize()) else {
+        return path.to_string_lossy().into_owned();
+    };
+    let pc: Vec<_> = p.components().collect();
+    let bc: Vec<_> = b.components().collect();
+    let common = pc.iter().zip(&bc).take_while(|(a, b)| a == b).count();
+    let mut out = PathBuf::new();
+    for _ in common..bc.len() {
+        out.push("..");
+    }
+    for c in &pc[common..] {
+        out.push(c);
+    }
+    out.to_string_lossy().into_owned()
 }
 
 /// Loads the scenario (file or embedded default) with overrides.
@@ -91,9 +165,13 @@ fn load(args: &ScenarioArgs) -> Result<LoadedScenario, Failure> {
     .map_err(bad_input)
 }
 
-/// Loads the scenario, then the arm and the GP.
+/// Loads the scenario, then the arm and the GP; the arm's warnings go to stderr.
 fn prepare(args: &ScenarioArgs) -> Result<RunSetup, Failure> {
-    RunSetup::prepare(load(args)?).map_err(bad_input)
+    let setup = RunSetup::prepare(load(args)?).map_err(bad_input)?;
+    for w in &setup.model.warnings {
+        eprintln!("warning: {}: {w}", setup.model.source.display());
+    }
+    Ok(setup)
 }
 
 fn parse_method(name: &str) -> Result<Method, Failure> {
@@ -461,7 +539,13 @@ fn bench(args: BenchArgs) -> Result<(), Failure> {
 }
 
 fn check_urdf(args: CheckUrdfArgs) -> Result<(), Failure> {
-    let model = plant::load_urdf(&args.path).map_err(bad_input)?;
+    let model = plant::load_urdf_with(
+        &args.path,
+        &plant::UrdfOptions {
+            balance_inertia: args.balance_inertia,
+        },
+    )
+    .map_err(bad_input)?;
     if let Some(ee) = args.ee.as_deref().filter(|ee| model.link(ee).is_none()) {
         return Err(bad_input(model.unknown_link_error(ee)));
     }
@@ -555,7 +639,14 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
         options.solver_iterations = it;
     }
     let staged = stage(&args.out, OutputKind::File, true)?;
-    let mut arm = Arm::from_urdf(&args.urdf, options).map_err(bad_input)?;
+    let model = plant::load_urdf_with(
+        &args.urdf,
+        &plant::UrdfOptions {
+            balance_inertia: args.balance_inertia,
+        },
+    )
+    .map_err(bad_input)?;
+    let mut arm = Arm::new(model, options).map_err(bad_input)?;
     let n = arm.n_joints();
     let check_len = |name: &str, v: &[f64]| {
         if v.len() == n {

@@ -1,0 +1,339 @@
+//! `aift init`: a healthy scenario that runs out of the box on any serial URDF arm, every choice
+//! derived from the arm itself and commented in the file.
+//!
+//! - Start: each joint at 0, or mid-range when 0 is within 10 % of a limit; two targets inside the
+//!   limits (+-0.3 rad, alternating per joint, moved inward where the range is narrow).
+//! - PID gains from the arm's own inertia: the mass matrix M and gravity torque G are measured
+//!   from the simulator at the start and the targets ([`crate::plant::Arm::probe_dynamics`]);
+//!   with the largest diagonal inertia m_i seen and the joint's damping D_i,
+//!   kp_i = max(m_i w^2, D_i w / 2) (the second where the joint's own damping would make the loop
+//!   slower than w / 2), kd_i = max(0, 2 zeta sqrt(kp_i m_i) - D_i) (damping ratio zeta with the
+//!   plant's damping counted), ki_i = kp_i w / 8 (integral time 8 / w), w = 8 rad/s and
+//!   zeta = 0.9 (w dt << 1, so the discrete loop is far from its stability limit at any
+//!   dt <= 10 ms); w lowered, and kp capped, where a 0.5 rad error would ask for more than the
+//!   joint's effort limit.
+//! - Integral limit: 1.5 x the largest gravity torque seen (at least 1 N m), capped at the effort.
+//! - Camera: a pinhole looking along the axis in which the end effector moves least over the
+//!   training box (the smallest principal axis of 200 sampled positions), from 3 x the extent of
+//!   the workspace, so its image spans the motion; the opposite side when more of the samples are
+//!   hidden from the first.
+//! - GP: 100 points per joint plus 100, at most 600, over the box of start and targets widened by
+//!   0.3 rad (the default margin).
+//! - The state prior's acceleration bound: 200 rad/s^2, or the largest acceleration the gains ask
+//!   for at a target step (kp_i 0.3 rad / m_i) when that is larger.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use nalgebra::{Matrix3, Vector3};
+use rand::SeedableRng;
+
+use super::ScenarioError;
+use crate::gp;
+use crate::plant::{Arm, ArmModel, ArmOptions, JointKind, UrdfOptions};
+use crate::sensors::{Camera, CameraConfig};
+
+/// What `aift init` needs.
+#[derive(Clone, Debug)]
+pub struct InitOptions {
+    /// End-effector link; default `ee` if the arm has one, else the last link of the chain.
+    pub ee_link: Option<String>,
+    pub balance_inertia: bool,
+    /// The URDF path as the scenario should name it (relative to the scenario file).
+    pub urdf_in_scenario: String,
+    /// Scenario name.
+    pub name: String,
+}
+
+/// Natural frequency (rad/s) and damping ratio of the generated PID loops.
+const OMEGA: f64 = 8.0;
+const ZETA: f64 = 0.9;
+/// Position error the gains must be able to answer within the effort limit (rad).
+const ERROR_SPAN: f64 = 0.5;
+/// Target offsets from the start (rad).
+const STEP: f64 = 0.3;
+
+fn fmt_list(v: &[f64]) -> String {
+    let items: Vec<String> = v.iter().map(|x| format_number(*x)).collect();
+    format!("[{}]", items.join(", "))
+}
+
+/// A number with about 4 significant digits, always with a decimal point (TOML float).
+fn format_number(x: f64) -> String {
+    if x == 0.0 {
+        return "0.0".into();
+    }
+    if x.abs() < 1e-3 {
+        return format!("{x:.3e}");
+    }
+    let digits = (4 - 1 - x.abs().log10().floor() as i32).max(0) as usize;
+    let s = format!("{x:.digits$}");
+    if s.contains('.') || s.contains('e') {
+        s
+    } else {
+        format!("{s}.0")
+    }
+}
+
+/// The link the end effector goes on by default: `ee`, else the last link in file order on the
+/// body of the last movable joint.
+fn default_ee(model: &ArmModel) -> String {
+    if model.link("ee").is_some() {
+        return "ee".into();
+    }
+    let last = model.joints.last().map_or(0, |j| j.child_body);
+    model
+        .links
+        .iter()
+        .rev()
+        .find(|l| l.body == last)
+        .map_or_else(|| model.bodies[last].link.clone(), |l| l.name.clone())
+}
+
+/// Writes a healthy scenario for the arm in `urdf` (as TOML text with comments).
+pub fn init_scenario(urdf: &Path, options: &InitOptions) -> Result<String, ScenarioError> {
+    let model = crate::plant::load_urdf_with(
+        urdf,
+        &UrdfOptions {
+            balance_inertia: options.balance_inertia,
+        },
+    )?;
+    let ee = options
+        .ee_link
+        .clone()
+        .unwrap_or_else(|| default_ee(&model));
+    if model.link(&ee).is_none() {
+        return Err(model.unknown_link_error(&ee).into());
+    }
+    let n = model.joints.len();
+    let dt = 1e-3;
+
+    // Start and targets.
+    let mut q0 = vec![0.0; n];
+    let mut t1 = vec![0.0; n];
+    let mut t2 = vec![0.0; n];
+    let mut notes = Vec::new();
+    for (i, j) in model.joints.iter().enumerate() {
+        let (lo, hi) = match (j.kind, j.limits) {
+            (JointKind::Continuous, _) | (_, None) => (-std::f64::consts::PI, std::f64::consts::PI),
+            (_, Some((lo, hi))) => (lo, hi),
+        };
+        let range = hi - lo;
+        let inner = (lo + 0.1 * range, hi - 0.1 * range);
+        q0[i] = if (inner.0..=inner.1).contains(&0.0) {
+            0.0
+        } else {
+            0.5 * (lo + hi)
+        };
+        let step = STEP.min(0.3 * range);
+        let sign = if i % 2 == 0 { 1.0 } else { -1.0 };
+        t1[i] = (q0[i] + sign * step).clamp(inner.0, inner.1);
+        t2[i] = (q0[i] - sign * step * 0.5).clamp(inner.0, inner.1);
+        if q0[i] != 0.0 {
+            notes.push(format!("joint {} starts mid-range", j.name));
+        }
+    }
+
+    // Dynamics at the start and the targets.
+    let mut arm = Arm::new(
+        model.clone(),
+        ArmOptions {
+            ee_link: ee.clone(),
+            ..ArmOptions::default()
+        },
+    )?;
+    let mut m_max = vec![0.0f64; n];
+    let mut g_max = vec![0.0f64; n];
+    for q in [&q0, &t1, &t2] {
+        let (m, g) = arm.probe_dynamics(q, dt);
+        for i in 0..n {
+            m_max[i] = m_max[i].max(m[(i, i)]);
+            g_max[i] = g_max[i].max(g[i].abs());
+        }
+    }
+    let (mut kp, mut kd, mut ki, mut ilim) =
+        (vec![0.0; n], vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+    let mut accel = 0.0f64;
+    for (i, j) in model.joints.iter().enumerate() {
+        let m = m_max[i].max(1e-6);
+        let d = j.damping;
+        let mut w = OMEGA;
+        if let Some(e) = j.effort {
+            w = w.min((e / (ERROR_SPAN * m)).sqrt());
+        }
+        // Where the joint's own damping dominates (kd + D >> 2 zeta m w), the slow pole sits at
+        // kp / (kd + D): kp is raised so that it is no slower than w / 2.
+        kp[i] = (m * w * w).max(0.5 * d * w);
+        if let Some(e) = j.effort {
+            kp[i] = kp[i].min(e / ERROR_SPAN);
+        }
+        kd[i] = (2.0 * ZETA * (kp[i] * m).sqrt() - d).max(0.0);
+        ki[i] = kp[i] * w / 8.0;
+        let limit = (1.5 * g_max[i]).max(1.0);
+        ilim[i] = j.effort.map_or(limit, |e| limit.min(e));
+        accel = accel.max(kp[i] * STEP / m);
+    }
+    let acceleration_bound = accel.max(super::config::DEFAULT_ACCELERATION_BOUND);
+
+    // The GP box and the camera.
+    let box_ = gp::derive_box(&[q0.clone(), t1.clone(), t2.clone()], 0.3);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+    let samples = gp::latin_hypercube(&box_, 200, &mut rng);
+    let zeros = vec![0.0; n];
+    let points: Vec<Vector3<f64>> = samples
+        .iter()
+        .map(|q| {
+            arm.set_state(q, &zeros);
+            arm.ee_position()
+        })
+        .collect();
+    let centroid = points.iter().fold(Vector3::zeros(), |a, p| a + p) / points.len() as f64;
+    let mut cov = Matrix3::zeros();
+    let mut extent = 0.0f64;
+    for p in &points {
+        let d = p - centroid;
+        cov += d * d.transpose();
+        extent = extent.max(d.norm());
+    }
+    let eig = cov.symmetric_eigen();
+    let smallest = (0..3)
+        .min_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]))
+        .unwrap_or(0);
+    let axis: Vector3<f64> = eig.eigenvectors.column(smallest).into();
+    let distance = 3.0 * extent.max(0.2);
+    let up_for = |view: &Vector3<f64>| {
+        if view.cross(&Vector3::z()).norm() > 0.2 {
+            [0.0, 0.0, 1.0]
+        } else {
+            [1.0, 0.0, 0.0]
+        }
+    };
+    let mut best: Option<(usize, CameraConfig)> = None;
+    let mut image = vec![0.0; 2];
+    for side in [1.0, -1.0] {
+        let position = centroid + axis * (side * distance);
+        let view = centroid - position;
+        let config = CameraConfig {
+            position: position.into(),
+            look_at: centroid.into(),
+            up: up_for(&view),
+            ..CameraConfig::default()
+        };
+        let camera = Camera::new(config.clone());
+        let hidden = samples
+            .iter()
+            .filter(|q| {
+                arm.set_state(q, &zeros);
+                camera.observe(&arm, &mut image).is_err()
+            })
+            .count();
+        if best.as_ref().is_none_or(|(h, _)| hidden < *h) {
+            best = Some((hidden, config));
+        }
+    }
+    let (hidden, camera) = best.expect("two sides tried");
+    let gp_points = (100 * n + 100).min(600);
+
+    let mut out = String::new();
+    let w = &mut out;
+    let _ = writeln!(
+        w,
+        "# Written by `aift init` for {} ({} joints): a healthy reaching task, every value derived",
+        urdf.display(),
+        n
+    );
+    let _ = writeln!(
+        w,
+        "# from the arm itself (docs/method.md, \"Bring your own arm\"). Edit freely; `aift run` it."
+    );
+    let _ = writeln!(w, "name = {:?}", options.name);
+    let _ = writeln!(
+        w,
+        "description = \"Healthy reaching on {} (generated by aift init)\"",
+        model.name
+    );
+    let _ = writeln!(w, "duration = 15.0\ndt = 0.001\nseed = 1\n");
+    let _ = writeln!(
+        w,
+        "[robot]\nurdf = {:?}\nee_link = {:?}",
+        options.urdf_in_scenario, ee
+    );
+    if options.balance_inertia {
+        let _ = writeln!(w, "balance_inertia = true");
+    }
+    let _ = writeln!(w);
+    let _ = writeln!(
+        w,
+        "# Each joint at 0, or mid-range where 0 lies within 10 % of a limit{}.",
+        if notes.is_empty() {
+            String::new()
+        } else {
+            format!(" ({})", notes.join("; "))
+        }
+    );
+    let _ = writeln!(w, "[initial]\nq = {}\n", fmt_list(&q0));
+    let _ = writeln!(
+        w,
+        "# Two set points {STEP} rad and {} rad from the start, alternating in sign per joint, kept\n# 10 % inside the limits; the switch at 7.5 s leaves time to settle.",
+        STEP * 0.5
+    );
+    let _ = writeln!(w, "[[targets]]\ntime = 0.0\nq = {}\n", fmt_list(&t1));
+    let _ = writeln!(w, "[[targets]]\ntime = 7.5\nq = {}\n", fmt_list(&t2));
+    let _ = writeln!(
+        w,
+        "# A pinhole camera looking along the axis in which the end effector moves least over the GP's\n# box (so the image spans the motion), {:.2} m from the workspace centre; {hidden} of 200 sampled\n# configurations are hidden from it. Distortion and noise are the paper's defaults.",
+        distance
+    );
+    let _ = writeln!(
+        w,
+        "[camera]\nposition = {}\nlook_at = {}\nup = {}\n",
+        fmt_list(&camera.position),
+        fmt_list(&camera.look_at),
+        fmt_list(&camera.up)
+    );
+    let _ = writeln!(
+        w,
+        "# 100 training points per joint plus 100 (at most 600), over the start and targets widened by\n# 0.3 rad."
+    );
+    let _ = writeln!(w, "[gp]\npoints = {gp_points}\n");
+    let _ = writeln!(
+        w,
+        "# The state prior treats {:.0} rad/s^2 as one standard deviation of acceleration: the default\n# 200, or the largest acceleration these gains ask for at a target step when larger.",
+        acceleration_bound
+    );
+    let _ = writeln!(
+        w,
+        "[controller]\nacceleration_bound = {}\n",
+        format_number(acceleration_bound)
+    );
+    let _ = writeln!(
+        w,
+        "# PID from the largest diagonal inertia m_i measured at the start and targets ({})\n# and the joint damping D_i: kp = max(m w^2, D w / 2), kd = max(0, 2 zeta sqrt(kp m) - D), ki = kp w / 8,\n# w = {OMEGA} rad/s (lower where a {ERROR_SPAN} rad error would exceed the effort limit), zeta = {ZETA}; the\n# integral is clamped at 1.5 x the largest gravity torque measured ({}), at least 1 N m, at most the\n# effort limit.",
+        fmt_list(&m_max),
+        fmt_list(&g_max)
+    );
+    let _ = writeln!(
+        w,
+        "[controller.gains]\nkp = {}\nkd = {}\nki = {}\nintegral_limit = {}\n",
+        fmt_list(&kp),
+        fmt_list(&kd),
+        fmt_list(&ki),
+        fmt_list(&ilim)
+    );
+    let _ = writeln!(w, "[precision]\nmethod = \"pl-always\"");
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn numbers_are_toml_floats_with_four_digits() {
+        assert_eq!(format_number(250.0), "250.0");
+        assert_eq!(format_number(0.012345), "0.01235");
+        assert_eq!(format_number(-1.5707963), "-1.571");
+        assert_eq!(format_number(0.0), "0.0");
+        assert_eq!(format_number(12345.0), "12345.0");
+    }
+}
