@@ -4,7 +4,7 @@ mod common;
 
 use std::path::Path;
 
-use aift::plant::{Arm, ArmOptions, PlantError, parse_urdf};
+use aift::plant::{Arm, ArmOptions, PlantError, UrdfOptions, parse_urdf, parse_urdf_with};
 use proptest::prelude::*;
 
 fn parse(text: &str) -> Result<aift::plant::ArmModel, PlantError> {
@@ -229,14 +229,154 @@ fn a_link_with_two_parents() {
 
 #[test]
 fn bad_masses() {
-    for mass in ["0", "-1"] {
-        let text = good().replacen(
+    let with_mass = |mass: &str| {
+        good().replacen(
             r#"<mass value="1"/>"#,
             &format!(r#"<mass value="{mass}"/>"#),
             1,
-        );
-        assert_err!(parse(&text), PlantError::BadMass { .. });
+        )
+    };
+    assert_err!(parse(&with_mass("-1")), PlantError::BadMass { .. });
+    // Zero mass on a moving body that nothing else gives mass: still refused.
+    assert_err!(parse(&with_mass("0")), PlantError::MasslessBody { .. });
+}
+
+/// Common URDFs of industrial arms give the fixed base and the flange `<mass value="0"/>`:
+/// accepted, as MuJoCo accepts them.
+#[test]
+fn zero_mass_fixed_root_and_flange_load() {
+    let massless = |name: &str| {
+        format!(
+            r#"<link name="{name}"><inertial><mass value="0"/><inertia ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"/></inertial></link>"#
+        )
+    };
+    let text = arm(
+        &format!(
+            "{}{}{}{}",
+            massless("base"),
+            link("a"),
+            link("b"),
+            massless("flange")
+        ),
+        &format!(
+            "{}{}{}",
+            joint("j1", "revolute", "base", "a"),
+            joint("j2", "revolute", "a", "b"),
+            joint("f", "fixed", "b", "flange")
+        ),
+    );
+    let m = parse(&text).unwrap();
+    assert_eq!(m.joints.len(), 2);
+    assert_eq!(m.bodies[0].mass, 0.0);
+    assert!(
+        (m.bodies[2].mass - 1.0).abs() < 1e-15,
+        "the flange adds nothing"
+    );
+    assert!(m.warnings.is_empty(), "{:?}", m.warnings);
+    let arm = Arm::new(
+        m,
+        ArmOptions {
+            ee_link: "flange".into(),
+            ..ArmOptions::default()
+        },
+    )
+    .unwrap();
+    assert!((arm.ee_position().x - 3.0).abs() < 1e-12);
+}
+
+#[test]
+fn a_massless_link_with_an_inertia_is_warned_about() {
+    let text = good().replacen(
+        r#"<link name="world"/>"#,
+        r#"<link name="world"><inertial><mass value="0"/><inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/></inertial></link>"#,
+        1,
+    );
+    let m = parse(&text).unwrap();
+    assert!(
+        m.warnings.iter().any(|w| w.contains("world")),
+        "{:?}",
+        m.warnings
+    );
+}
+
+/// The triangle inequality: refused with a message naming the option; with the option, the
+/// middle principal moment is raised just enough and the link is named in a warning.
+#[test]
+fn balance_inertia_repairs_the_triangle_inequality_just_enough() {
+    let triangle = good().replacen(r#"iyy="0.1""#, r#"iyy="0.5""#, 1);
+    match parse(&triangle) {
+        Err(PlantError::BadInertia { reason, .. }) => {
+            assert!(reason.contains("balance_inertia"), "{reason}")
+        }
+        other => panic!("{:?}", other.map(|m| m.name)),
     }
+    let m = parse_urdf_with(
+        &triangle,
+        Path::new("bad.urdf"),
+        &UrdfOptions {
+            balance_inertia: true,
+        },
+    )
+    .unwrap();
+    assert!(
+        m.warnings
+            .iter()
+            .any(|w| w.contains("link 'a'") && w.contains("balanced"))
+    );
+    // Moments were (0.01, 0.1, 0.5): the middle one becomes 0.5 - 0.01 = 0.49.
+    let i = m.bodies[1].inertia;
+    let mut e: Vec<f64> = i.symmetric_eigen().eigenvalues.iter().copied().collect();
+    e.sort_by(f64::total_cmp);
+    assert!(
+        (e[0] - 0.01).abs() < 1e-12 && (e[1] - 0.49).abs() < 1e-12 && (e[2] - 0.5).abs() < 1e-12,
+        "{e:?}"
+    );
+    // A valid tensor is left exactly as it was.
+    let ok = parse_urdf_with(
+        &good(),
+        Path::new("good.urdf"),
+        &UrdfOptions {
+            balance_inertia: true,
+        },
+    )
+    .unwrap();
+    assert_eq!(
+        ok.bodies[1].inertia,
+        parse(&good()).unwrap().bodies[1].inertia
+    );
+}
+
+#[test]
+fn negative_dynamics_and_limits_are_refused() {
+    for (from, to, attribute) in [
+        (
+            "<axis xyz=\"0 -1 0\"/>",
+            "<axis xyz=\"0 -1 0\"/><dynamics damping=\"-0.5\"/>",
+            "damping",
+        ),
+        (
+            "<axis xyz=\"0 -1 0\"/>",
+            "<axis xyz=\"0 -1 0\"/><dynamics friction=\"-1\"/>",
+            "friction",
+        ),
+        ("effort=\"10\"", "effort=\"-10\"", "effort"),
+        ("velocity=\"1\"", "velocity=\"-1\"", "velocity"),
+    ] {
+        let text = good().replacen(from, to, 1);
+        match parse(&text) {
+            Err(e @ PlantError::Negative { .. }) => {
+                assert!(e.to_string().contains(attribute), "{e}");
+                assert!(e.to_string().contains("j1"), "{e}");
+            }
+            other => panic!("{attribute}: {:?}", other.map(|m| m.name)),
+        }
+    }
+}
+
+#[test]
+fn a_second_robot_element_is_refused() {
+    let text = format!("{}{}", good(), good());
+    assert_err!(parse(&text), PlantError::Xml { .. });
 }
 
 #[test]
@@ -365,8 +505,11 @@ fn meshes_are_skipped_with_a_warning_and_never_resolved() {
 fn bundled_urdfs_are_valid() {
     for file in [
         "urdf/planar_2dof.urdf",
+        "urdf/planar_2dof_undamped.urdf",
         "urdf/planar_3dof.urdf",
         "urdf/spatial_3dof.urdf",
+        "urdf/spatial_3dof_lowdamp.urdf",
+        "urdf/panda_7dof.urdf",
     ] {
         let m = aift::plant::load_urdf(&common::repo(file)).unwrap();
         assert!(m.warnings.is_empty(), "{file}: {:?}", m.warnings);

@@ -4,12 +4,14 @@
 //! rapier multibody from it and steps it. Nothing here knows about sensors or active inference.
 
 mod arm;
+pub mod chain;
 mod error;
 mod open_loop;
 pub mod urdf;
 
 pub(crate) use arm::to_dvec;
-pub use arm::{Arm, ArmCollider, ArmOptions};
+pub use arm::{Arm, ArmCollider, ArmOptions, Engine};
+pub use chain::{Chain, Integrator};
 pub use error::PlantError;
 pub use open_loop::{OpenLoopSample, open_loop_header, run_open_loop};
 pub use urdf::{

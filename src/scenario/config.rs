@@ -92,6 +92,12 @@ pub struct RobotConfig {
     /// Repair inertias that break the triangle inequality (see [`crate::plant::UrdfOptions`]).
     #[serde(default)]
     pub balance_inertia: bool,
+    /// `rapier` (default) or `articulated` (aift's own dynamics; docs/method.md, "Plant").
+    #[serde(default)]
+    pub engine: crate::plant::Engine,
+    /// The articulated engine's integrator: `euler` (rapier's map) or `rk4`.
+    #[serde(default)]
+    pub integrator: crate::plant::Integrator,
 }
 
 /// Most solver iterations (substeps) per tick.
@@ -112,6 +118,8 @@ impl RobotConfig {
             ee_offset: self.ee_offset,
             gravity: self.gravity,
             solver_iterations: self.solver_iterations,
+            engine: self.engine,
+            integrator: self.integrator,
         }
     }
 }
@@ -478,6 +486,14 @@ impl Scenario {
         }
         if !self.robot.gravity.iter().all(|v| v.is_finite()) {
             return Err(bad("robot.gravity", "values must be finite".into()));
+        }
+        if self.robot.engine == crate::plant::Engine::Rapier
+            && self.robot.integrator != crate::plant::Integrator::Euler
+        {
+            return Err(bad(
+                "robot.integrator",
+                "applies to robot.engine = \"articulated\" (rapier integrates its own way)".into(),
+            ));
         }
         if !(1..=MAX_SOLVER_ITERATIONS).contains(&self.robot.solver_iterations) {
             return Err(bad(

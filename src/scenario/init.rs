@@ -332,7 +332,7 @@ mod tests {
     fn numbers_are_toml_floats_with_four_digits() {
         assert_eq!(format_number(250.0), "250.0");
         assert_eq!(format_number(0.012345), "0.01235");
-        assert_eq!(format_number(-1.5707963), "-1.571");
+        assert_eq!(format_number(-1.234567), "-1.235");
         assert_eq!(format_number(0.0), "0.0");
         assert_eq!(format_number(12345.0), "12345.0");
     }

@@ -1,0 +1,137 @@
+//! The arms people have: every bundled arm (the paper's, the paper's without damping, the planar
+//! and spatial 3-DOF arms, the low-damping spatial arm, the Panda 7-DOF) reaches its targets under
+//! every method when healthy; `pl-always` recovers an encoder freeze on each; the oracle recovers a
+//! tachometer freeze on each; and `aift init` writes, for each bundled URDF, a scenario whose
+//! healthy run reaches its targets under every method.
+
+mod common;
+
+use aift::scenario::calibrate::calibrate;
+use aift::scenario::table::run_table;
+use aift::scenario::{LoadedScenario, Method, RunSetup};
+use aift::sensors::{FaultKind, FaultSpec};
+
+/// Each bundled arm's encoder-freeze scenario and the joint its faults go on.
+const ARMS: [(&str, &str); 6] = [
+    ("paper_encoder_freeze.toml", "1"),
+    ("undamped2_encoder_freeze.toml", "1"),
+    ("planar3_encoder_freeze.toml", "1"),
+    ("spatial3_encoder_freeze.toml", "1"),
+    ("spatial3low_encoder_freeze.toml", "1"),
+    ("panda_encoder_freeze.toml", "2"),
+];
+
+/// The same setup (arm, GP) with other faults.
+fn with_faults(setup: &RunSetup, faults: Vec<FaultSpec>) -> RunSetup {
+    let mut s = setup.clone();
+    s.faults = faults
+        .iter()
+        .map(|f| f.to_fault(&s.layout).unwrap())
+        .collect();
+    s.loaded.scenario.faults = faults;
+    s
+}
+
+fn freeze(channel: &str) -> FaultSpec {
+    FaultSpec {
+        channel: channel.into(),
+        start: 8.0,
+        end: None,
+        kind: FaultKind::Freeze {},
+    }
+}
+
+/// Runs every method once (seed 1) and returns (method, final error, outcome).
+fn every_method(setup: &RunSetup) -> Vec<(String, f64, String)> {
+    let cal = calibrate(setup, 10).expect("calibration");
+    let table = run_table(setup, &Method::ALL, &[1], Some(&cal), &|| {}).expect("runs");
+    table
+        .runs
+        .iter()
+        .map(|r| {
+            (
+                r.method.clone(),
+                r.max_final_error,
+                r.outcome.name().to_string(),
+            )
+        })
+        .collect()
+}
+
+#[test]
+fn every_bundled_arm_reaches_its_targets_under_every_method_recovers_an_encoder_freeze_and_the_oracle_a_tachometer_freeze()
+ {
+    let mut failures = Vec::new();
+    for (file, joint) in ARMS {
+        let base = common::setup(file, &[]);
+        let healthy = with_faults(&base, vec![]);
+        for (method, error, outcome) in every_method(&healthy) {
+            eprintln!("{file} healthy {method}: final error {error:.2e} ({outcome})");
+            if error.is_nan() || error > 0.01 || outcome != "completed" {
+                failures.push(format!("{file} healthy {method}: {error}"));
+            }
+        }
+        let enc = with_faults(&base, vec![freeze(&format!("enc{joint}"))]);
+        let (r, _) = common::run_recorded(&enc, Method::PlAlways, 1, None);
+        eprintln!(
+            "{file} enc{joint} freeze pl-always: final error {:.2e}, faulty MSE {:.2e}",
+            r.max_final_error,
+            r.mse_faulty.unwrap()
+        );
+        if r.max_final_error.is_nan() || r.max_final_error > 0.02 {
+            failures.push(format!("{file} encoder freeze: {}", r.max_final_error));
+        }
+        let tach = with_faults(&base, vec![freeze(&format!("tach{joint}"))]);
+        let (r, _) = common::run_recorded(&tach, Method::Oracle, 1, None);
+        eprintln!(
+            "{file} tach{joint} freeze oracle: final error {:.2e}, faulty MSE {:.2e}",
+            r.max_final_error,
+            r.mse_faulty.unwrap()
+        );
+        if r.max_final_error.is_nan() || r.max_final_error > 0.02 || r.mse_faulty.unwrap() > 1e-5 {
+            failures.push(format!("{file} tachometer freeze oracle: {r:?}"));
+        }
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
+}
+
+#[test]
+fn init_writes_a_scenario_that_reaches_its_targets_under_every_method() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut failures = Vec::new();
+    for urdf in [
+        "planar_2dof",
+        "planar_2dof_undamped",
+        "planar_3dof",
+        "spatial_3dof",
+        "spatial_3dof_lowdamp",
+        "panda_7dof",
+    ] {
+        let out = tmp.path().join(format!("{urdf}.toml"));
+        let status = std::process::Command::new(env!("CARGO_BIN_EXE_aift"))
+            .args(["init", "--urdf"])
+            .arg(common::repo(&format!("urdf/{urdf}.urdf")))
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert!(
+            status.status.success(),
+            "{urdf}: {}",
+            String::from_utf8_lossy(&status.stderr)
+        );
+        let text = std::fs::read_to_string(&out).unwrap();
+        assert!(
+            text.contains("# PID from the largest diagonal inertia"),
+            "{text}"
+        );
+        let setup = RunSetup::prepare(LoadedScenario::from_file(&out, &[]).unwrap()).unwrap();
+        for (method, error, outcome) in every_method(&setup) {
+            eprintln!("init {urdf} {method}: final error {error:.2e} ({outcome})");
+            if error.is_nan() || error > 0.01 || outcome != "completed" {
+                failures.push(format!("init {urdf} {method}: {error}"));
+            }
+        }
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
+}

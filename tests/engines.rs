@@ -1,0 +1,163 @@
+//! Two engines, checked against each other and against the closed-form oracle: rapier's
+//! multibody and aift's own articulated-body dynamics. The articulated engine's mass matrix and
+//! gravity equal those measured from rapier on the 7-DOF arm; with the Euler integrator it takes
+//! rapier's step; with RK4 it follows the oracle to 1e-9; and on the undamped and 7-DOF arms both
+//! engines converge to the same trajectory as their substeps shrink. The accuracy and cost per
+//! setting behind the README's table come from here (`--nocapture`).
+
+mod common;
+
+use std::time::Instant;
+
+use aift::plant::{Arm, ArmOptions, Engine, Integrator};
+use common::{PaperArm, repo};
+
+fn arm(file: &str, engine: Engine, integrator: Integrator, iterations: usize) -> Arm {
+    Arm::from_urdf(
+        &repo(file),
+        ArmOptions {
+            solver_iterations: iterations,
+            engine,
+            integrator,
+            ..ArmOptions::default()
+        },
+    )
+    .expect("the arm loads")
+}
+
+/// Runs from (q0, 0) with constant torques; returns q at the end and the wall time per tick (us).
+fn swing(arm: &mut Arm, q0: &[f64], tau: &[f64], duration: f64) -> (Vec<f64>, f64) {
+    let dt = 1e-3;
+    arm.set_state(q0, &vec![0.0; q0.len()]);
+    arm.set_torques(tau);
+    let steps = (duration / dt).round() as usize;
+    let start = Instant::now();
+    for _ in 0..steps {
+        arm.step(dt);
+    }
+    let us = start.elapsed().as_secs_f64() * 1e6 / steps as f64;
+    (arm.state().0, us)
+}
+
+fn max_diff(a: &[f64], b: &[f64]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
+}
+
+#[test]
+fn articulated_dynamics_equal_what_rapier_measures_on_the_7_dof_arm() {
+    // One substep: the probe's step from rest is then exactly qd = dt (M + dt D)^-1 (tau - G).
+    let mut rapier = arm("urdf/panda_7dof.urdf", Engine::Rapier, Integrator::Euler, 1);
+    let mut art = arm(
+        "urdf/panda_7dof.urdf",
+        Engine::Articulated,
+        Integrator::Euler,
+        1,
+    );
+    for q in [
+        [0.0, -0.78, 0.0, -2.36, 0.0, 1.57, 0.78],
+        [0.4, 0.3, -0.5, -1.2, 0.7, 2.1, -1.0],
+    ] {
+        let (m_r, g_r) = rapier.probe_dynamics(&q, 1e-3);
+        let (m_a, g_a) = art.probe_dynamics(&q, 1e-3);
+        let scale = m_r.amax();
+        let dm = (&m_r - &m_a).amax() / scale;
+        let dg = max_diff(&g_r, &g_a) / g_r.iter().fold(0.0f64, |a, b| a.max(b.abs()));
+        eprintln!(
+            "7-DOF at {q:?}: mass matrix differs by {dm:.2e}, gravity by {dg:.2e} (relative)"
+        );
+        assert!(dm < 1e-9 && dg < 1e-9, "{m_r} {m_a} {g_r:?} {g_a:?}");
+    }
+}
+
+#[test]
+fn articulated_euler_takes_rapiers_step_and_rk4_follows_the_oracle() {
+    let oracle = PaperArm::default();
+    let undamped = PaperArm {
+        d1: 0.0,
+        d2: 0.0,
+        ..oracle
+    };
+    for (file, reference) in [
+        ("urdf/planar_2dof.urdf", oracle),
+        ("urdf/planar_2dof_undamped.urdf", undamped),
+    ] {
+        let (q_ref, _) = reference.rk4([0.3, 0.2], [0.0, 0.0], [30.0, -8.0], 2.0, 1e-5);
+        let mut rows = Vec::new();
+        for (engine, integrator, iterations) in [
+            (Engine::Rapier, Integrator::Euler, 2),
+            (Engine::Articulated, Integrator::Euler, 2),
+            (Engine::Rapier, Integrator::Euler, 16),
+            (Engine::Articulated, Integrator::Euler, 16),
+            (Engine::Articulated, Integrator::Rk4, 1),
+        ] {
+            let mut a = arm(file, engine, integrator, iterations);
+            let (q, us) = swing(&mut a, &[0.3, 0.2], &[30.0, -8.0], 2.0);
+            let err = max_diff(&q, &q_ref);
+            eprintln!(
+                "{file}: {engine:?} {integrator:?} x{iterations}: error after 2 s {err:.2e} rad, {us:.2} us/tick"
+            );
+            rows.push((engine, integrator, iterations, err, q));
+        }
+        // Two first-order schemes: their difference shrinks with the substeps like their
+        // errors do (8x the substeps, at least 4x closer), and on the heavily damped paper arm,
+        // where the damping dominates the step, they agree within a few per cent of the error.
+        let d2 = max_diff(&rows[0].4, &rows[1].4);
+        let d16 = max_diff(&rows[2].4, &rows[3].4);
+        eprintln!("{file}: rapier and articulated Euler differ by {d2:.2e} (x2), {d16:.2e} (x16)");
+        assert!(d16 < d2 / 4.0, "{file}: {d2} {d16}");
+        assert!(
+            rows[3].3 < rows[1].3 / 4.0,
+            "{file}: articulated Euler is not first order"
+        );
+        if file == "urdf/planar_2dof.urdf" {
+            assert!(d2 < 0.05 * rows[0].3, "{file}: {d2} vs error {}", rows[0].3);
+        }
+        // RK4 at the control tick is within 1e-8 of the fine reference.
+        assert!(rows[4].3 < 1e-8, "{file}: RK4 error {}", rows[4].3);
+    }
+}
+
+#[test]
+fn both_engines_converge_to_one_trajectory_on_the_7_dof_arm() {
+    // Gravity held at the start plus a push on every joint: a smooth motion clear of the limits.
+    let q0 = [0.0, -0.78, 0.0, -2.36, 0.0, 1.57, 0.78];
+    let mut reference = arm(
+        "urdf/panda_7dof.urdf",
+        Engine::Articulated,
+        Integrator::Rk4,
+        4,
+    );
+    let (_, g) = reference.probe_dynamics(&q0, 1e-3);
+    let push = [2.0, 3.0, -1.0, 2.0, 0.05, -0.05, 0.005];
+    let tau: Vec<f64> = g.iter().zip(push).map(|(g, p)| g + p).collect();
+    let (q_ref, _) = swing(&mut reference, &q0, &tau, 0.5);
+    let mut errors = Vec::new();
+    for iterations in [1, 4, 16] {
+        let mut r = arm(
+            "urdf/panda_7dof.urdf",
+            Engine::Rapier,
+            Integrator::Euler,
+            iterations,
+        );
+        let (q, us) = swing(&mut r, &q0, &tau, 0.5);
+        let err = max_diff(&q, &q_ref);
+        let mut a = arm(
+            "urdf/panda_7dof.urdf",
+            Engine::Articulated,
+            Integrator::Euler,
+            iterations,
+        );
+        let (qa, ua) = swing(&mut a, &q0, &tau, 0.5);
+        eprintln!(
+            "7-DOF, 0.5 s: rapier x{iterations} error {err:.2e} ({us:.1} us/tick); articulated Euler x{iterations} {:.2e} ({ua:.1} us/tick)",
+            max_diff(&qa, &q_ref)
+        );
+        errors.push(err);
+    }
+    // First order: sixteen times the substeps, roughly a sixteenth of the error.
+    assert!(errors[0] > 8.0 * errors[2], "{errors:?}");
+    assert!(errors[2] < 1e-3, "{errors:?}");
+}
