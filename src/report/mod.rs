@@ -4,6 +4,7 @@
 //! every output folder is staged and moved into place whole ([`crate::fsio::Staged`]), so a
 //! failure never leaves a half-written output.
 
+pub mod campaign_files;
 pub mod plots;
 pub mod run_files;
 pub mod table_files;

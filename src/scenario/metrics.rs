@@ -70,6 +70,8 @@ pub struct RunResult {
     pub mse_faulty: Option<f64>,
     /// Mean MSE over the other joints (None if none).
     pub mse_healthy: Option<f64>,
+    /// Joint positions at the end.
+    pub q_final: Vec<f64>,
     /// |q(T) - final target| per joint.
     pub final_error_per_joint: Vec<f64>,
     pub max_final_error: f64,
@@ -338,6 +340,7 @@ impl RunMetrics {
             mse_per_joint,
             mse_post_fault_per_joint,
             faulty_joints: self.faulty_joints,
+            q_final: q_final.to_vec(),
             final_error_per_joint,
             max_final_error,
             detected_at,

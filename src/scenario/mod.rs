@@ -9,6 +9,7 @@
 
 pub mod bench;
 pub mod calibrate;
+pub mod campaign;
 pub mod config;
 pub mod init;
 pub mod method;

@@ -31,6 +31,47 @@ pub enum Command {
     Bench(BenchArgs),
     /// Write a healthy scenario for any serial URDF arm, every value derived from the arm.
     Init(InitArgs),
+    /// Run a fault campaign (every fault, channel, arm and method) and write its matrix.
+    Campaign(CampaignArgs),
+    /// Merge the shards of a campaign into the files of the whole campaign.
+    Merge(MergeArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct CampaignArgs {
+    /// Campaign file (TOML); default: the bundled assets/campaigns/default.toml.
+    pub campaign: Option<PathBuf>,
+    /// Seeds per cell (default: the campaign's).
+    #[arg(long)]
+    pub seeds: Option<usize>,
+    /// Methods, comma-separated (default: the campaign's).
+    #[arg(long, value_delimiter = ',')]
+    pub methods: Vec<String>,
+    /// Output folder (default: campaigns/<name>/).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Replace a non-empty output folder.
+    #[arg(long)]
+    pub force: bool,
+    /// Run only the K-th of N disjoint slices of the grid (e.g. 3/8); merge with `aift merge`.
+    #[arg(long)]
+    pub shard: Option<String>,
+    /// Override a value of every arm's scenario (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE", allow_hyphen_values = true)]
+    pub set: Vec<String>,
+}
+
+#[derive(Debug, Args)]
+pub struct MergeArgs {
+    /// The shards' output folders.
+    #[arg(required = true)]
+    pub shards: Vec<PathBuf>,
+    /// Output folder.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Replace a non-empty output folder.
+    #[arg(long)]
+    pub force: bool,
 }
 
 #[derive(Debug, Args)]

@@ -13,8 +13,8 @@ use aift::report::{self, ReportError, run_files, table_files};
 use aift::scenario::{self, LoadedScenario, Method, RunSetup, calibrate, table};
 
 use crate::args::{
-    BenchArgs, CalibrateArgs, CheckUrdfArgs, Cli, Command, InitArgs, RunArgs, ScenarioArgs,
-    SimulateArgs, TableArgs, TrainGpArgs,
+    BenchArgs, CalibrateArgs, CampaignArgs, CheckUrdfArgs, Cli, Command, InitArgs, MergeArgs,
+    RunArgs, ScenarioArgs, SimulateArgs, TableArgs, TrainGpArgs,
 };
 
 /// A failed command: the error and the exit code it maps to.
@@ -80,7 +80,146 @@ pub fn dispatch(cli: Cli) -> Result<(), Failure> {
         Command::TrainGp(args) => train_gp(args),
         Command::Bench(args) => bench(args),
         Command::Init(args) => init(args),
+        Command::Campaign(args) => campaign(args),
+        Command::Merge(args) => merge(args),
     }
+}
+
+/// The bundled default campaign, where this build of aift finds its repository.
+fn default_campaign_path() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("assets/campaigns/default.toml")
+}
+
+fn campaign(args: CampaignArgs) -> Result<(), Failure> {
+    use aift::scenario::campaign::{Campaign, Shard, run_campaign};
+    let start = std::time::Instant::now();
+    let path = args.campaign.clone().unwrap_or_else(default_campaign_path);
+    if args.campaign.is_none() && !path.is_file() {
+        return Err(bad_input(anyhow!(
+            "the bundled campaign {} is not here; pass a campaign file",
+            path.display()
+        )));
+    }
+    let shard = match &args.shard {
+        Some(s) => Shard::parse(s).map_err(|e| bad_input(anyhow!("--shard: {e}")))?,
+        None => Shard::WHOLE,
+    };
+    // Options that change the campaign's definition go into its configuration (and fingerprint).
+    let text = aift::fsio::read_text(&path, aift::fsio::MAX_SCENARIO_BYTES).map_err(file_failure)?;
+    let de = toml::Deserializer::parse(&text).map_err(|e| bad_input(anyhow!("{}: {e}", path.display())))?;
+    let mut config: aift::scenario::campaign::CampaignConfig = serde_path_to_error::deserialize(de)
+        .map_err(|e| {
+            let key = e.path().to_string();
+            bad_input(anyhow!("{}: `{key}`: {}", path.display(), e.into_inner()))
+        })?;
+    if let Some(s) = args.seeds {
+        config.seeds = s;
+    }
+    if !args.methods.is_empty() {
+        config.methods = Some(parse_methods(&args.methods)?);
+    }
+    config.set.extend(args.set.iter().cloned());
+    let dir = args
+        .out
+        .clone()
+        .unwrap_or_else(|| PathBuf::from("campaigns").join(&config.name));
+    let staged = stage(&dir, OutputKind::Folder, args.force)?;
+    eprintln!("preparing {} (arms, camera models)...", path.display());
+    let campaign = Campaign::from_config(config, &path, &[]).map_err(bad_input)?;
+    let jobs = campaign.jobs().len() + campaign.reaching_tasks().len();
+    eprintln!(
+        "{} cells x {} methods x {} seeds = {} runs{}{}",
+        campaign.cells.len(),
+        campaign.methods.len(),
+        campaign.config.seeds,
+        campaign.jobs().len(),
+        if campaign.config.reaching.is_some() {
+            format!(", plus {} reaching tasks", campaign.reaching_tasks().len())
+        } else {
+            String::new()
+        },
+        if shard == Shard::WHOLE {
+            String::new()
+        } else {
+            format!("; shard {}/{} of {jobs} jobs", shard.index, shard.count)
+        }
+    );
+    let bar = indicatif::ProgressBar::new(0);
+    if !std::io::IsTerminal::is_terminal(&std::io::stderr()) {
+        bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+    }
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} jobs, {elapsed} (time left {eta})")
+            .expect("valid template"),
+    );
+    let progress = |done: usize, total: usize| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+    };
+    let dir_cache = cache_dir();
+    let records = run_campaign(&campaign, shard, dir_cache.as_deref(), &progress).map_err(bad_input)?;
+    bar.finish_and_clear();
+    if shard == Shard::WHOLE {
+        report::campaign_files::write_campaign(staged.path(), &campaign, &records)
+            .map_err(report_failure)?;
+    } else {
+        report::write_atomic(
+            &staged.path().join(report::campaign_files::RECORDS),
+            serde_json::to_string(&records).expect("records serialise").as_bytes(),
+        )
+        .map_err(report_failure)?;
+    }
+    staged
+        .commit()
+        .map_err(|e| report_failure(ReportError::File(e)))?;
+    if shard == Shard::WHOLE {
+        let (_, methods) = aift::scenario::campaign::summarise(&campaign, &records.runs);
+        println!("| method | recovered | degraded | failed | diverged | worse than no-FT | recovers where the oracle does |");
+        println!("|---|---|---|---|---|---|---|");
+        for m in methods {
+            println!(
+                "| {} | {} | {} | {} | {} | {} | {}/{} |",
+                m.method, m.recovered, m.degraded, m.failed, m.diverged, m.worse_than_no_ft,
+                m.recovers_where_oracle_does, m.oracle_recovers
+            );
+        }
+    }
+    println!(
+        "{} runs in {:.1} s on {} threads; wrote {}/",
+        records.runs.len() + records.reaching.len(),
+        start.elapsed().as_secs_f64(),
+        rayon::current_num_threads(),
+        dir.display()
+    );
+    Ok(())
+}
+
+fn merge(args: MergeArgs) -> Result<(), Failure> {
+    use aift::scenario::campaign::{Campaign, CampaignRecords, merge};
+    let staged = stage(&args.out, OutputKind::Folder, args.force)?;
+    let mut shards = Vec::new();
+    for dir in &args.shards {
+        let path = dir.join(report::campaign_files::RECORDS);
+        let text = aift::fsio::read_text(&path, aift::fsio::MAX_CALIBRATION_BYTES).map_err(file_failure)?;
+        let records: CampaignRecords = serde_json::from_str(&text)
+            .map_err(|e| bad_input(anyhow!("{}: not a campaign shard: {e}", path.display())))?;
+        shards.push(records);
+    }
+    let merged = merge(&shards).map_err(|e| bad_input(anyhow!("{e}")))?;
+    let campaign = Campaign::plan(merged.config.clone());
+    report::campaign_files::write_campaign(staged.path(), &campaign, &merged)
+        .map_err(report_failure)?;
+    staged
+        .commit()
+        .map_err(|e| report_failure(ReportError::File(e)))?;
+    println!(
+        "merged {} shards ({} runs) of campaign {}; wrote {}/",
+        shards.len(),
+        merged.runs.len() + merged.reaching.len(),
+        merged.campaign,
+        args.out.display()
+    );
+    Ok(())
 }
 
 fn init(args: InitArgs) -> Result<(), Failure> {

@@ -1,0 +1,446 @@
+//! The files of a campaign: `campaign.csv` (a row per cell x method x seed, then a row per
+//! cell x method), `campaign.md` (a matrix per arm and the per-method summary), `campaign.json`,
+//! `heatmap_<arm>.svg` (cells by methods, coloured by log10 of the ratio to the oracle's
+//! post-fault MSE, failures crossed), `reaching.csv` and `records.json` (every run in full
+//! precision: what `aift merge` reads). Every file is a function of the records alone, so a
+//! merged set of shards writes the same bytes as the unsharded run.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use plotters::prelude::*;
+use serde_json::json;
+
+use super::{ReportError, write_atomic};
+use crate::scenario::Method;
+use crate::scenario::campaign::{
+    CAMPAIGN_FORMAT, Campaign, CampaignRecords, CellSummary, MethodSummary, Verdict, summarise,
+};
+
+/// The records file of a run or shard.
+pub const RECORDS: &str = "records.json";
+
+/// A CSV field: quoted when it holds a comma, a quote or a newline.
+fn field(s: &str) -> String {
+    if s.contains([',', '"', '\n']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
+}
+
+fn opt(v: Option<f64>) -> String {
+    v.map_or_else(String::new, |x| format!("{x}"))
+}
+
+fn sci(v: f64) -> String {
+    if v.is_finite() {
+        format!("{v:.1e}")
+    } else {
+        "-".into()
+    }
+}
+
+/// Short form of a verdict and ratio for the matrix: `ok 1.2`, `deg 35`, `FAIL`, `DIV`.
+fn entry(s: &CellSummary) -> String {
+    let ratio = s.ratio_to_oracle.map_or(String::new(), |r| {
+        if r < 100.0 {
+            format!(" {r:.1}")
+        } else {
+            format!(" {r:.0e}")
+        }
+    });
+    let mark = if s.worse_than_no_ft { "!" } else { "" };
+    match s.verdict {
+        Verdict::Recovered => format!("ok{ratio}{mark}"),
+        Verdict::Degraded => format!("deg{ratio}{mark}"),
+        Verdict::Failed => format!("FAIL ({}/{}){mark}", s.recovered, s.seeds),
+        Verdict::Diverged => format!("DIV{mark}"),
+    }
+}
+
+/// Writes every campaign file into `dir` (which must exist), and the records.
+pub fn write_campaign(
+    dir: &Path,
+    campaign: &Campaign,
+    records: &CampaignRecords,
+) -> Result<(), ReportError> {
+    let (cells, methods) = summarise(campaign, &records.runs);
+    write_atomic(
+        &dir.join(RECORDS),
+        serde_json::to_string(records)
+            .expect("records serialise")
+            .as_bytes(),
+    )?;
+    write_atomic(&dir.join("campaign.csv"), csv(campaign, records, &cells).as_bytes())?;
+    write_atomic(
+        &dir.join("campaign.md"),
+        markdown(campaign, records, &cells, &methods).as_bytes(),
+    )?;
+    let j = serde_json::to_string_pretty(&json_doc(campaign, records, &cells, &methods))
+        .expect("serialisable");
+    write_atomic(&dir.join("campaign.json"), j.as_bytes())?;
+    if !records.reaching.is_empty() {
+        write_atomic(&dir.join("reaching.csv"), reaching_csv(campaign, records).as_bytes())?;
+    }
+    for (a, arm) in campaign.config.arms.iter().enumerate() {
+        heatmap(&dir.join(format!("heatmap_{}.svg", arm.name)), campaign, a, &cells)?;
+    }
+    Ok(())
+}
+
+fn csv(campaign: &Campaign, records: &CampaignRecords, cells: &[CellSummary]) -> String {
+    let mut out = String::from(
+        "row,arm,cell,channel,kind,onset,method,seed,outcome,verdict,mse_post,ratio_to_oracle,max_final_error,runaway,detected,detection_delay,isolation_correct,false_alarms,false_alarms_per_hour,recover_time,worse_than_no_ft\n",
+    );
+    let cell_cols = |c: usize| {
+        let cell = &campaign.cells[c];
+        format!(
+            "{},{},{},{},{}",
+            field(&campaign.config.arms[cell.arm].name),
+            field(&cell.label),
+            field(&cell.channel),
+            cell.kind,
+            cell.onset.map_or("", |o| o.name())
+        )
+    };
+    for r in &records.runs {
+        let _ = writeln!(
+            out,
+            "run,{},{},{},{},{},{},,{},{},{},{},{},{},,{},",
+            cell_cols(r.cell),
+            r.method,
+            r.seed,
+            r.outcome,
+            r.verdict.name(),
+            r.mse_post,
+            r.max_final_error,
+            r.runaway,
+            r.detected.map_or(String::new(), |b| b.to_string()),
+            opt(r.delay),
+            r.isolation_correct.map_or(String::new(), |b| b.to_string()),
+            r.false_alarms,
+            opt(r.recover_time),
+        );
+    }
+    for s in cells {
+        let _ = writeln!(
+            out,
+            "cell,{},{},{},,{},{},{},{},{},{},{},{},{},{},{},{}",
+            cell_cols(s.cell),
+            s.method,
+            s.seeds,
+            s.verdict.name(),
+            s.mse_post_mean,
+            opt(s.ratio_to_oracle),
+            s.final_error_mean,
+            s.runaways,
+            s.seeds - s.missed_detections,
+            opt(s.detection_delay_mean),
+            opt(s.isolation_correct),
+            "",
+            s.false_alarms_per_hour,
+            opt(s.recover_time_mean),
+            s.worse_than_no_ft,
+        );
+    }
+    out
+}
+
+fn markdown(
+    campaign: &Campaign,
+    records: &CampaignRecords,
+    cells: &[CellSummary],
+    methods: &[MethodSummary],
+) -> String {
+    let c = &campaign.config;
+    let mut out = format!(
+        "# Campaign {} ({} cells x {} methods x {} seeds; fingerprint {})\n\n",
+        c.name,
+        campaign.cells.len(),
+        campaign.methods.len(),
+        c.seeds,
+        records.fingerprint
+    );
+    let _ = writeln!(
+        out,
+        "Entries: `ok` recovered in every seed (final error within {} rad), `deg` degraded \
+         (within {} rad in the worst seed), `FAIL (k/n)` failed (k of n seeds recovered; a \
+         runaway: a joint at its limit or {} rad off), `DIV` diverged; the number is the \
+         post-fault MSE of the faulty joints over the oracle's; `!` marks worse than no-FT (MSE \
+         over 1.5x no-FT's, or final error {} rad above it).\n",
+        c.verdict.tolerance,
+        c.verdict.degraded,
+        c.verdict.runaway,
+        0.5 * c.verdict.tolerance
+    );
+    out += "## Summary per method\n\n";
+    out += "| method | recovered | degraded | failed | diverged | worse than no-FT | recovers where the oracle does | within 10x oracle | false alarms / h (healthy) |\n";
+    out += "|---|---|---|---|---|---|---|---|---|\n";
+    for m in methods {
+        let _ = writeln!(
+            out,
+            "| {} | {} | {} | {} | {} | {} | {}/{} | {}/{} | {:.1} |",
+            m.method,
+            m.recovered,
+            m.degraded,
+            m.failed,
+            m.diverged,
+            m.worse_than_no_ft,
+            m.recovers_where_oracle_does,
+            m.oracle_recovers,
+            m.within_10x_oracle,
+            m.fault_cells,
+            m.false_alarms_per_hour
+        );
+    }
+    for (a, arm) in c.arms.iter().enumerate() {
+        let _ = write!(out, "\n## {} (`{}`)\n\n| cell |", arm.name, arm.scenario.display());
+        for m in &campaign.methods {
+            let _ = write!(out, " {m} |");
+        }
+        out += "\n|---|";
+        out += &"---|".repeat(campaign.methods.len());
+        out += "\n";
+        for (ci, cell) in campaign.cells.iter().enumerate().filter(|(_, c)| c.arm == a) {
+            let _ = write!(out, "| {} |", cell.label);
+            for m in &campaign.methods {
+                let e = cells
+                    .iter()
+                    .find(|s| s.cell == ci && s.method == *m)
+                    .map_or("-".to_string(), entry);
+                let _ = write!(out, " {e} |");
+            }
+            out += "\n";
+        }
+    }
+    if !records.reaching.is_empty() {
+        out += &reaching_markdown(campaign, records);
+    }
+    out
+}
+
+/// Means per arm and method of the reaching benchmark.
+fn reaching_rows(campaign: &Campaign, records: &CampaignRecords) -> Vec<(usize, Method, [f64; 5], usize)> {
+    let mut rows = Vec::new();
+    for a in 0..campaign.config.arms.len() {
+        for &m in &campaign.methods {
+            let rs: Vec<_> = records
+                .reaching
+                .iter()
+                .filter(|r| r.arm == a && r.method == m)
+                .collect();
+            if rs.is_empty() {
+                continue;
+            }
+            let n = rs.len() as f64;
+            let settled: Vec<f64> = rs.iter().filter_map(|r| r.settling_time).collect();
+            rows.push((
+                a,
+                m,
+                [
+                    rs.iter().map(|r| r.belief_rmse).sum::<f64>() / n,
+                    rs.iter().map(|r| r.overshoot).sum::<f64>() / n,
+                    if settled.is_empty() {
+                        f64::NAN
+                    } else {
+                        settled.iter().sum::<f64>() / settled.len() as f64
+                    },
+                    rs.iter().map(|r| r.steady_state_error).sum::<f64>() / n,
+                    rs.iter().map(|r| r.false_alarms).sum::<usize>() as f64,
+                ],
+                rs.len() - settled.len(),
+            ));
+        }
+    }
+    rows
+}
+
+fn reaching_markdown(campaign: &Campaign, records: &CampaignRecords) -> String {
+    let mut out = format!(
+        "\n## Healthy reaching benchmark ({} random tasks per arm)\n\nMeans over the tasks: belief RMSE (rad), overshoot beyond the target (% of the step), settling time into a 0.5 % band (s; tasks that never settle counted apart), steady-state error (rad), false alarms (total).\n\n| arm | method | belief RMSE | overshoot (%) | settling time (s) | not settled | steady-state error | false alarms |\n|---|---|---|---|---|---|---|---|\n",
+        campaign.config.reaching.as_ref().map_or(0, |r| r.tasks)
+    );
+    for (a, m, v, unsettled) in reaching_rows(campaign, records) {
+        let _ = writeln!(
+            out,
+            "| {} | {m} | {} | {:.2} | {:.3} | {unsettled} | {} | {} |",
+            campaign.config.arms[a].name,
+            sci(v[0]),
+            v[1],
+            v[2],
+            sci(v[3]),
+            v[4]
+        );
+    }
+    out
+}
+
+fn reaching_csv(campaign: &Campaign, records: &CampaignRecords) -> String {
+    let mut out = String::from(
+        "arm,task,method,belief_rmse,overshoot_percent,settling_time,steady_state_error,false_alarms\n",
+    );
+    for r in &records.reaching {
+        let _ = writeln!(
+            out,
+            "{},{},{},{},{},{},{},{}",
+            field(&campaign.config.arms[r.arm].name),
+            r.task,
+            r.method,
+            r.belief_rmse,
+            r.overshoot,
+            opt(r.settling_time),
+            r.steady_state_error,
+            r.false_alarms
+        );
+    }
+    out
+}
+
+fn json_doc(
+    campaign: &Campaign,
+    records: &CampaignRecords,
+    cells: &[CellSummary],
+    methods: &[MethodSummary],
+) -> serde_json::Value {
+    json!({
+        "format_version": CAMPAIGN_FORMAT,
+        "aift_version": env!("CARGO_PKG_VERSION"),
+        "campaign": campaign.config.name,
+        "fingerprint": records.fingerprint,
+        "seeds": campaign.config.seeds,
+        "methods": campaign.methods.iter().map(|m| m.name()).collect::<Vec<_>>(),
+        "verdict": {
+            "tolerance": campaign.config.verdict.tolerance,
+            "degraded": campaign.config.verdict.degraded,
+            "runaway": campaign.config.verdict.runaway,
+        },
+        "cells": campaign.cells.iter().enumerate().map(|(i, c)| json!({
+            "index": i,
+            "arm": campaign.config.arms[c.arm].name,
+            "label": c.label,
+            "channel": c.channel,
+            "kind": c.kind,
+            "onset": c.onset.map(|o| o.name()),
+            "results": cells.iter().filter(|s| s.cell == i).map(|s| json!({
+                "method": s.method.name(),
+                "verdict": s.verdict.name(),
+                "recovered_seeds": s.recovered,
+                "seeds": s.seeds,
+                "mse_post_mean": s.mse_post_mean,
+                "mse_post_std": s.mse_post_std,
+                "ratio_to_oracle": s.ratio_to_oracle,
+                "final_error_mean": s.final_error_mean,
+                "runaways": s.runaways,
+                "detection_delay_mean": s.detection_delay_mean,
+                "missed_detections": s.missed_detections,
+                "isolation_correct": s.isolation_correct,
+                "false_alarms_per_hour": s.false_alarms_per_hour,
+                "recover_time_mean": s.recover_time_mean,
+                "worse_than_no_ft": s.worse_than_no_ft,
+            })).collect::<Vec<_>>(),
+        })).collect::<Vec<_>>(),
+        "summary": methods.iter().map(|m| json!({
+            "method": m.method.name(),
+            "cells": m.cells,
+            "recovered": m.recovered,
+            "degraded": m.degraded,
+            "failed": m.failed,
+            "diverged": m.diverged,
+            "worse_than_no_ft": m.worse_than_no_ft,
+            "oracle_recovers": m.oracle_recovers,
+            "recovers_where_oracle_does": m.recovers_where_oracle_does,
+            "within_10x_oracle": m.within_10x_oracle,
+            "fault_cells": m.fault_cells,
+            "false_alarms_per_hour": m.false_alarms_per_hour,
+        })).collect::<Vec<_>>(),
+        "reaching": reaching_rows(campaign, records).iter().map(|(a, m, v, unsettled)| json!({
+            "arm": campaign.config.arms[*a].name,
+            "method": m.name(),
+            "belief_rmse": v[0],
+            "overshoot_percent": v[1],
+            "settling_time": v[2],
+            "not_settled": unsettled,
+            "steady_state_error": v[3],
+            "false_alarms": v[4],
+        })).collect::<Vec<_>>(),
+    })
+}
+
+/// A colour for log10(ratio to the oracle): green at 0 (or below), through yellow, to red at 4.
+fn colour(log_ratio: f64) -> RGBColor {
+    let x = (log_ratio / 4.0).clamp(0.0, 1.0);
+    let (r, g) = if x < 0.5 {
+        (x * 2.0, 1.0)
+    } else {
+        (1.0, 2.0 - 2.0 * x)
+    };
+    RGBColor((60.0 + 180.0 * r) as u8, (60.0 + 160.0 * g) as u8, 70)
+}
+
+fn heatmap(
+    path: &Path,
+    campaign: &Campaign,
+    arm: usize,
+    cells: &[CellSummary],
+) -> Result<(), ReportError> {
+    let rows: Vec<(usize, &str)> = campaign
+        .cells
+        .iter()
+        .enumerate()
+        .filter(|(_, c)| c.arm == arm)
+        .map(|(i, c)| (i, c.label.as_str()))
+        .collect();
+    let cols = &campaign.methods;
+    let (cw, rh, left, top) = (90i32, 18i32, 220i32, 60i32);
+    let width = (left + cw * cols.len() as i32 + 20) as u32;
+    let height = (top + rh * rows.len() as i32 + 40) as u32;
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (width, height)).into_drawing_area();
+        let err = |e: &dyn std::fmt::Display| ReportError::Plot {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        };
+        root.fill(&WHITE).map_err(|e| err(&e))?;
+        let title = format!(
+            "{}: log10(post-fault MSE / oracle's); X failed or diverged",
+            campaign.config.arms[arm].name
+        );
+        root.draw(&Text::new(title, (10, 10), ("sans-serif", 15)))
+            .map_err(|e| err(&e))?;
+        for (k, m) in cols.iter().enumerate() {
+            root.draw(&Text::new(
+                m.name().to_string(),
+                (left + cw * k as i32 + 4, top - 18),
+                ("sans-serif", 12),
+            ))
+            .map_err(|e| err(&e))?;
+        }
+        for (r, (ci, label)) in rows.iter().enumerate() {
+            let y = top + rh * r as i32;
+            root.draw(&Text::new(label.to_string(), (6, y + 3), ("sans-serif", 11)))
+                .map_err(|e| err(&e))?;
+            for (k, m) in cols.iter().enumerate() {
+                let x = left + cw * k as i32;
+                let Some(s) = cells.iter().find(|s| s.cell == *ci && s.method == *m) else {
+                    continue;
+                };
+                let lr = s.ratio_to_oracle.map_or(0.0, |v| v.max(1e-300).log10());
+                root.draw(&Rectangle::new(
+                    [(x, y), (x + cw - 2, y + rh - 2)],
+                    colour(lr).filled(),
+                ))
+                .map_err(|e| err(&e))?;
+                let text = match s.verdict {
+                    Verdict::Failed | Verdict::Diverged => "X".to_string(),
+                    _ => format!("{lr:.1}"),
+                };
+                root.draw(&Text::new(text, (x + 30, y + 3), ("sans-serif", 11)))
+                    .map_err(|e| err(&e))?;
+            }
+        }
+        root.present().map_err(|e| err(&e))?;
+    }
+    write_atomic(path, svg.as_bytes())
+}
