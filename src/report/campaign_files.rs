@@ -72,7 +72,10 @@ pub fn write_campaign(
             .expect("records serialise")
             .as_bytes(),
     )?;
-    write_atomic(&dir.join("campaign.csv"), csv(campaign, records, &cells).as_bytes())?;
+    write_atomic(
+        &dir.join("campaign.csv"),
+        csv(campaign, records, &cells).as_bytes(),
+    )?;
     write_atomic(
         &dir.join("campaign.md"),
         markdown(campaign, records, &cells, &methods).as_bytes(),
@@ -81,10 +84,18 @@ pub fn write_campaign(
         .expect("serialisable");
     write_atomic(&dir.join("campaign.json"), j.as_bytes())?;
     if !records.reaching.is_empty() {
-        write_atomic(&dir.join("reaching.csv"), reaching_csv(campaign, records).as_bytes())?;
+        write_atomic(
+            &dir.join("reaching.csv"),
+            reaching_csv(campaign, records).as_bytes(),
+        )?;
     }
     for (a, arm) in campaign.config.arms.iter().enumerate() {
-        heatmap(&dir.join(format!("heatmap_{}.svg", arm.name)), campaign, a, &cells)?;
+        heatmap(
+            &dir.join(format!("heatmap_{}.svg", arm.name)),
+            campaign,
+            a,
+            &cells,
+        )?;
     }
     Ok(())
 }
@@ -195,14 +206,24 @@ fn markdown(
         );
     }
     for (a, arm) in c.arms.iter().enumerate() {
-        let _ = write!(out, "\n## {} (`{}`)\n\n| cell |", arm.name, arm.scenario.display());
+        let _ = write!(
+            out,
+            "\n## {} (`{}`)\n\n| cell |",
+            arm.name,
+            arm.scenario.display()
+        );
         for m in &campaign.methods {
             let _ = write!(out, " {m} |");
         }
         out += "\n|---|";
         out += &"---|".repeat(campaign.methods.len());
         out += "\n";
-        for (ci, cell) in campaign.cells.iter().enumerate().filter(|(_, c)| c.arm == a) {
+        for (ci, cell) in campaign
+            .cells
+            .iter()
+            .enumerate()
+            .filter(|(_, c)| c.arm == a)
+        {
             let _ = write!(out, "| {} |", cell.label);
             for m in &campaign.methods {
                 let e = cells
@@ -221,7 +242,10 @@ fn markdown(
 }
 
 /// Means per arm and method of the reaching benchmark.
-fn reaching_rows(campaign: &Campaign, records: &CampaignRecords) -> Vec<(usize, Method, [f64; 5], usize)> {
+fn reaching_rows(
+    campaign: &Campaign,
+    records: &CampaignRecords,
+) -> Vec<(usize, Method, [f64; 5], usize)> {
     let mut rows = Vec::new();
     for a in 0..campaign.config.arms.len() {
         for &m in &campaign.methods {
@@ -419,8 +443,12 @@ fn heatmap(
         }
         for (r, (ci, label)) in rows.iter().enumerate() {
             let y = top + rh * r as i32;
-            root.draw(&Text::new(label.to_string(), (6, y + 3), ("sans-serif", 11)))
-                .map_err(|e| err(&e))?;
+            root.draw(&Text::new(
+                label.to_string(),
+                (6, y + 3),
+                ("sans-serif", 11),
+            ))
+            .map_err(|e| err(&e))?;
             for (k, m) in cols.iter().enumerate() {
                 let x = left + cw * k as i32;
                 let Some(s) = cells.iter().find(|s| s.cell == *ci && s.method == *m) else {

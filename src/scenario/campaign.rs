@@ -582,7 +582,10 @@ impl Campaign {
         }
         let cells = expand(&config, &config.onsets);
         if cells.len() > MAX_CELLS {
-            return Err(bad("kinds", format!("{} cells; at most {MAX_CELLS}", cells.len())));
+            return Err(bad(
+                "kinds",
+                format!("{} cells; at most {MAX_CELLS}", cells.len()),
+            ));
         }
         let jobs = cells
             .len()
@@ -600,7 +603,10 @@ impl Campaign {
             for (k, f) in cell.faults.iter().enumerate() {
                 f.to_fault(&setup.layout).map_err(|(field, m)| {
                     bad(
-                        &format!("cell `{}` of arm {}: fault {k}.{field}", cell.label, config.arms[cell.arm].name),
+                        &format!(
+                            "cell `{}` of arm {}: fault {k}.{field}",
+                            cell.label, config.arms[cell.arm].name
+                        ),
                         m,
                     )
                 })?;
@@ -794,12 +800,10 @@ impl Observer for RecoveryObserver {
 
 /// Whether a joint is at (within 1 mrad of) one of its limits.
 fn at_limit(setup: &RunSetup, q: &[f64]) -> bool {
-    setup
-        .model
-        .joints
-        .iter()
-        .zip(q)
-        .any(|(j, &q)| j.limits.is_some_and(|(lo, hi)| q <= lo + 1e-3 || q >= hi - 1e-3))
+    setup.model.joints.iter().zip(q).any(|(j, &q)| {
+        j.limits
+            .is_some_and(|(lo, hi)| q <= lo + 1e-3 || q >= hi - 1e-3)
+    })
 }
 
 fn verdict_of(r: &RunResult, runaway: bool, v: &VerdictConfig) -> Verdict {
@@ -890,8 +894,14 @@ impl Shard {
         let (k, n) = text
             .split_once('/')
             .ok_or_else(|| format!("{text:?} is not K/N"))?;
-        let k: usize = k.trim().parse().map_err(|_| format!("{text:?}: K is not a number"))?;
-        let n: usize = n.trim().parse().map_err(|_| format!("{text:?}: N is not a number"))?;
+        let k: usize = k
+            .trim()
+            .parse()
+            .map_err(|_| format!("{text:?}: K is not a number"))?;
+        let n: usize = n
+            .trim()
+            .parse()
+            .map_err(|_| format!("{text:?}: N is not a number"))?;
         if n == 0 || n > 100_000 || k == 0 || k > n {
             return Err(format!("{text:?}: needs 1 <= K <= N <= 100000"));
         }
@@ -1017,14 +1027,22 @@ pub fn merge(shards: &[CampaignRecords]) -> Result<CampaignRecords, String> {
         if s.fingerprint != first.fingerprint || s.campaign != first.campaign {
             return Err(format!(
                 "shard {}/{} is of another campaign ({} {}, not {} {})",
-                s.shard.index, s.shard.count, s.campaign, s.fingerprint, first.campaign, first.fingerprint
+                s.shard.index,
+                s.shard.count,
+                s.campaign,
+                s.fingerprint,
+                first.campaign,
+                first.fingerprint
             ));
         }
         if s.shard.count != first.shard.count || s.jobs != first.jobs {
             return Err("the shards split the campaign differently".into());
         }
         if !seen_shards.insert(s.shard.index) {
-            return Err(format!("shard {}/{} is given twice", s.shard.index, s.shard.count));
+            return Err(format!(
+                "shard {}/{} is given twice",
+                s.shard.index, s.shard.count
+            ));
         }
         for j in s
             .runs
@@ -1178,7 +1196,11 @@ pub fn summarise(
                 cell: c,
                 method: m,
                 seeds: rs.len(),
-                verdict: rs.iter().map(|r| r.verdict).max().unwrap_or(Verdict::Recovered),
+                verdict: rs
+                    .iter()
+                    .map(|r| r.verdict)
+                    .max()
+                    .unwrap_or(Verdict::Recovered),
                 recovered: rs
                     .iter()
                     .filter(|r| r.verdict == Verdict::Recovered)
@@ -1218,7 +1240,8 @@ pub fn summarise(
             if let Some((m, f)) = no_ft
                 && r.method != Method::NoFt
             {
-                r.worse_than_no_ft = worse_than_no_ft(r.mse_post_mean, r.final_error_mean, m, f, tolerance);
+                r.worse_than_no_ft =
+                    worse_than_no_ft(r.mse_post_mean, r.final_error_mean, m, f, tolerance);
             }
         }
         cells.extend(rows);
@@ -1302,7 +1325,10 @@ impl Campaign {
     /// configuration, no arm prepared.
     pub fn plan(config: CampaignConfig) -> Self {
         let cells = expand(&config, &config.onsets);
-        let methods = config.methods.clone().unwrap_or_else(|| Method::ALL.to_vec());
+        let methods = config
+            .methods
+            .clone()
+            .unwrap_or_else(|| Method::ALL.to_vec());
         Self {
             config,
             path: PathBuf::new(),
@@ -1396,7 +1422,11 @@ fn run_reaching(
     job: usize,
     cache: Option<&Path>,
 ) -> Result<Vec<ReachingRun>, ScenarioError> {
-    let rc = campaign.config.reaching.as_ref().expect("reaching configured");
+    let rc = campaign
+        .config
+        .reaching
+        .as_ref()
+        .expect("reaching configured");
     let mut setup = campaign.arms[task.arm].clone();
     let sc = &mut setup.loaded.scenario;
     sc.faults.clear();

@@ -105,8 +105,10 @@ fn campaign(args: CampaignArgs) -> Result<(), Failure> {
         None => Shard::WHOLE,
     };
     // Options that change the campaign's definition go into its configuration (and fingerprint).
-    let text = aift::fsio::read_text(&path, aift::fsio::MAX_SCENARIO_BYTES).map_err(file_failure)?;
-    let de = toml::Deserializer::parse(&text).map_err(|e| bad_input(anyhow!("{}: {e}", path.display())))?;
+    let text =
+        aift::fsio::read_text(&path, aift::fsio::MAX_SCENARIO_BYTES).map_err(file_failure)?;
+    let de = toml::Deserializer::parse(&text)
+        .map_err(|e| bad_input(anyhow!("{}: {e}", path.display())))?;
     let mut config: aift::scenario::campaign::CampaignConfig = serde_path_to_error::deserialize(de)
         .map_err(|e| {
             let key = e.path().to_string();
@@ -149,15 +151,18 @@ fn campaign(args: CampaignArgs) -> Result<(), Failure> {
         bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
     }
     bar.set_style(
-        indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} jobs, {elapsed} (time left {eta})")
-            .expect("valid template"),
+        indicatif::ProgressStyle::with_template(
+            "{bar:40} {pos}/{len} jobs, {elapsed} (time left {eta})",
+        )
+        .expect("valid template"),
     );
     let progress = |done: usize, total: usize| {
         bar.set_length(total as u64);
         bar.set_position(done as u64);
     };
     let dir_cache = cache_dir();
-    let records = run_campaign(&campaign, shard, dir_cache.as_deref(), &progress).map_err(bad_input)?;
+    let records =
+        run_campaign(&campaign, shard, dir_cache.as_deref(), &progress).map_err(bad_input)?;
     bar.finish_and_clear();
     if shard == Shard::WHOLE {
         report::campaign_files::write_campaign(staged.path(), &campaign, &records)
@@ -165,7 +170,9 @@ fn campaign(args: CampaignArgs) -> Result<(), Failure> {
     } else {
         report::write_atomic(
             &staged.path().join(report::campaign_files::RECORDS),
-            serde_json::to_string(&records).expect("records serialise").as_bytes(),
+            serde_json::to_string(&records)
+                .expect("records serialise")
+                .as_bytes(),
         )
         .map_err(report_failure)?;
     }
@@ -174,13 +181,21 @@ fn campaign(args: CampaignArgs) -> Result<(), Failure> {
         .map_err(|e| report_failure(ReportError::File(e)))?;
     if shard == Shard::WHOLE {
         let (_, methods) = aift::scenario::campaign::summarise(&campaign, &records.runs);
-        println!("| method | recovered | degraded | failed | diverged | worse than no-FT | recovers where the oracle does |");
+        println!(
+            "| method | recovered | degraded | failed | diverged | worse than no-FT | recovers where the oracle does |"
+        );
         println!("|---|---|---|---|---|---|---|");
         for m in methods {
             println!(
                 "| {} | {} | {} | {} | {} | {} | {}/{} |",
-                m.method, m.recovered, m.degraded, m.failed, m.diverged, m.worse_than_no_ft,
-                m.recovers_where_oracle_does, m.oracle_recovers
+                m.method,
+                m.recovered,
+                m.degraded,
+                m.failed,
+                m.diverged,
+                m.worse_than_no_ft,
+                m.recovers_where_oracle_does,
+                m.oracle_recovers
             );
         }
     }
@@ -200,7 +215,8 @@ fn merge(args: MergeArgs) -> Result<(), Failure> {
     let mut shards = Vec::new();
     for dir in &args.shards {
         let path = dir.join(report::campaign_files::RECORDS);
-        let text = aift::fsio::read_text(&path, aift::fsio::MAX_CALIBRATION_BYTES).map_err(file_failure)?;
+        let text = aift::fsio::read_text(&path, aift::fsio::MAX_CALIBRATION_BYTES)
+            .map_err(file_failure)?;
         let records: CampaignRecords = serde_json::from_str(&text)
             .map_err(|e| bad_input(anyhow!("{}: not a campaign shard: {e}", path.display())))?;
         shards.push(records);

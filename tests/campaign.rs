@@ -1,0 +1,274 @@
+//! The fault campaign: the grid expands as the file says; shards merged write the same files as
+//! the unsharded run, byte for byte; a cell is flagged "worse than no-FT" exactly when the rule
+//! says so; false alarms per hour are counted on healthy cells.
+
+mod common;
+
+use std::path::Path;
+use std::process::Command;
+
+use aift::scenario::campaign::{
+    CampaignConfig, Onset, Verdict, expand, summarise, worse_than_no_ft,
+};
+
+fn small_campaign(dir: &Path) -> std::path::PathBuf {
+    let text = format!(
+        r#"
+name = "small"
+seeds = 2
+methods = ["no-ft", "pl-always", "deterministic", "oracle"]
+set = ["robot.engine=\"articulated\"", "duration=10.0", "detector.calibration_runs=8"]
+channels = ["enc*", "tach*"]
+
+[[arms]]
+name = "paper"
+scenario = "{}"
+
+[[kinds]]
+kind = "freeze"
+onsets = ["moving", "rest"]
+
+[[pairs]]
+label = "enc freeze, then cam bias"
+faults = [
+    {{ channel = "enc*", kind = "freeze", start = 8.0 }},
+    {{ channel = "cam", kind = "bias", offset = 0.04, start = 9.0 }},
+]
+
+[reaching]
+tasks = 2
+duration = 3.0
+calibration_runs = 4
+"#,
+        common::repo("assets/scenarios/paper_healthy.toml").display()
+    );
+    let path = dir.join("small.toml");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+fn aift(args: &[&str], dir: &Path) -> std::process::Output {
+    let out = Command::new(env!("CARGO_BIN_EXE_aift"))
+        .args(args)
+        .current_dir(dir)
+        .env("AIFT_CACHE_DIR", "off")
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
+#[test]
+fn the_grid_expands_as_the_file_says() {
+    let text = r#"
+name = "g"
+channels = ["enc*", "tach*", "cam", "enc2"]
+arms = [
+  { name = "a", scenario = "x.toml", joints = [1, 3] },
+  { name = "b", scenario = "y.toml" },
+]
+[[kinds]]
+kind = "freeze"
+onsets = ["moving", "rest", "rest-then-motion"]
+[[kinds]]
+kind = "bias"
+offset = { enc = 0.05, tach = 0.1, cam = 0.04 }
+[[pairs]]
+label = "p"
+faults = [{ channel = "tach*", kind = "freeze", start = 8.0 }]
+"#;
+    let config: CampaignConfig = toml::from_str(text).unwrap();
+    let cells = expand(&config, &config.onsets);
+    // Arm a: channels enc1, enc3, tach1, tach3, cam, enc2 (6); b: enc1, tach1, cam, enc2 (4).
+    // Per channel 3 freeze onsets + 1 bias; a healthy cell and one pair per arm.
+    assert_eq!(cells.len(), (1 + 6 * 4 + 1) + (1 + 4 * 4 + 1));
+    let a: Vec<&str> = cells
+        .iter()
+        .filter(|c| c.arm == 0)
+        .map(|c| c.label.as_str())
+        .collect();
+    assert_eq!(a[0], "healthy");
+    assert!(a.contains(&"enc3 freeze rest-then-motion"));
+    assert!(a.contains(&"tach3 bias moving"));
+    assert!(a.contains(&"cam freeze rest"));
+    let rest = cells
+        .iter()
+        .find(|c| c.label == "enc1 freeze rest")
+        .unwrap();
+    assert!(rest.rest && rest.onset == Some(Onset::Rest));
+    assert_eq!(rest.faults[0].start, 5.0);
+    let moving = cells
+        .iter()
+        .find(|c| c.label == "tach1 bias moving")
+        .unwrap();
+    assert!(!moving.rest);
+    assert_eq!(moving.faults[0].start, 8.0);
+    assert_eq!(
+        moving.faults[0].kind,
+        aift::sensors::FaultKind::Bias { offset: 0.1 }
+    );
+    let pair = cells.iter().find(|c| c.label == "p" && c.arm == 0).unwrap();
+    assert_eq!(pair.faults[0].channel.label(), "tach1");
+    // A size per group goes to the channel's group.
+    let cam = cells.iter().find(|c| c.label == "cam bias moving").unwrap();
+    assert_eq!(
+        cam.faults[0].kind,
+        aift::sensors::FaultKind::Bias { offset: 0.04 }
+    );
+}
+
+#[test]
+fn merged_shards_equal_the_unsharded_run_byte_for_byte() {
+    let tmp = tempfile::tempdir().unwrap();
+    let file = small_campaign(tmp.path());
+    let file = file.to_str().unwrap();
+    aift(&["campaign", file, "--out", "whole"], tmp.path());
+    for k in 1..=3 {
+        aift(
+            &[
+                "campaign",
+                file,
+                "--shard",
+                &format!("{k}/3"),
+                "--out",
+                &format!("s{k}"),
+            ],
+            tmp.path(),
+        );
+    }
+    aift(&["merge", "s1", "s2", "s3", "--out", "merged"], tmp.path());
+    let whole = tmp.path().join("whole");
+    let merged = tmp.path().join("merged");
+    let mut names: Vec<String> = std::fs::read_dir(&whole)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    for expected in [
+        "campaign.csv",
+        "campaign.json",
+        "campaign.md",
+        "heatmap_paper.svg",
+        "reaching.csv",
+        "records.json",
+    ] {
+        assert!(
+            names.iter().any(|n| n == expected),
+            "{expected} missing: {names:?}"
+        );
+    }
+    for name in &names {
+        assert_eq!(
+            std::fs::read(whole.join(name)).unwrap(),
+            std::fs::read(merged.join(name)).unwrap(),
+            "{name} differs"
+        );
+    }
+    // Incomplete or repeated shards are refused (exit 2).
+    let out = Command::new(env!("CARGO_BIN_EXE_aift"))
+        .args(["merge", "s1", "s2", "--out", "bad"])
+        .current_dir(tmp.path())
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("missing"));
+    let out = Command::new(env!("CARGO_BIN_EXE_aift"))
+        .args(["merge", "s1", "s1", "s2", "s3", "--out", "bad"])
+        .current_dir(tmp.path())
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(!tmp.path().join("bad").exists());
+}
+
+#[test]
+fn flags_and_false_alarms_follow_their_definitions() {
+    let tmp = tempfile::tempdir().unwrap();
+    let file = small_campaign(tmp.path());
+    // A detector this permissive (alpha 0.9) false-alarms on healthy runs.
+    let campaign = aift::scenario::campaign::Campaign::load(
+        &file,
+        &[
+            "detector.alpha=0.9".to_string(),
+            "detector.rearm_ticks=50".to_string(),
+        ],
+    )
+    .unwrap();
+    let records = aift::scenario::campaign::run_campaign(
+        &campaign,
+        aift::scenario::campaign::Shard::WHOLE,
+        None,
+        &|_, _| {},
+    )
+    .unwrap();
+    let (cells, methods) = summarise(&campaign, &records.runs);
+    let tolerance = campaign.config.verdict.tolerance;
+    let mut flagged = 0;
+    for s in &cells {
+        let no_ft = cells
+            .iter()
+            .find(|o| o.cell == s.cell && o.method == aift::scenario::Method::NoFt)
+            .unwrap();
+        let expected = s.method != aift::scenario::Method::NoFt
+            && worse_than_no_ft(
+                s.mse_post_mean,
+                s.final_error_mean,
+                no_ft.mse_post_mean,
+                no_ft.final_error_mean,
+                tolerance,
+            );
+        assert_eq!(s.worse_than_no_ft, expected, "{s:?}");
+        flagged += usize::from(expected);
+        // The worst seed's verdict.
+        let worst = records
+            .runs
+            .iter()
+            .filter(|r| r.cell == s.cell && r.method == s.method)
+            .map(|r| r.verdict)
+            .max()
+            .unwrap();
+        assert_eq!(s.verdict, worst);
+    }
+    eprintln!("{flagged} cells flagged worse than no-FT");
+    // Healthy cell: false alarms per hour = alarms / simulated hours.
+    let healthy = campaign.cells.iter().position(|c| c.is_healthy()).unwrap();
+    let det = cells
+        .iter()
+        .find(|s| s.cell == healthy && s.method == aift::scenario::Method::Deterministic)
+        .unwrap();
+    let runs: Vec<_> = records
+        .runs
+        .iter()
+        .filter(|r| r.cell == healthy && r.method == aift::scenario::Method::Deterministic)
+        .collect();
+    let alarms: usize = runs.iter().map(|r| r.false_alarms).sum();
+    let hours: f64 = runs.iter().map(|r| r.hours).sum();
+    eprintln!(
+        "deterministic at alpha 0.9 on the healthy cell: {alarms} alarms in {hours:.4} h = {:.1}/h",
+        det.false_alarms_per_hour
+    );
+    assert!(alarms > 0);
+    assert!((det.false_alarms_per_hour - alarms as f64 / hours).abs() < 1e-9);
+    assert!((hours - 2.0 * 10.0 / 3600.0).abs() < 1e-12);
+    let summary = methods
+        .iter()
+        .find(|m| m.method == aift::scenario::Method::Deterministic)
+        .unwrap();
+    assert!(summary.false_alarms_per_hour > 0.0);
+    // The oracle recovers the encoder freeze at rest.
+    let cell = campaign
+        .cells
+        .iter()
+        .position(|c| c.label == "enc1 freeze rest")
+        .unwrap();
+    let oracle = cells
+        .iter()
+        .find(|s| s.cell == cell && s.method == aift::scenario::Method::Oracle)
+        .unwrap();
+    assert_eq!(oracle.verdict, Verdict::Recovered);
+    assert_eq!(oracle.ratio_to_oracle, Some(1.0));
+}
