@@ -137,7 +137,7 @@ fn csv(campaign: &Campaign, records: &CampaignRecords, cells: &[CellSummary]) ->
     for s in cells {
         let _ = writeln!(
             out,
-            "cell,{},{},{},,{},{},{},{},{},{},{},{},{},{},{},{}",
+            "cell,{},{},{},,{},{},{},{},{},{},{},{},,{},{},{}",
             cell_cols(s.cell),
             s.method,
             s.seeds,
@@ -149,7 +149,6 @@ fn csv(campaign: &Campaign, records: &CampaignRecords, cells: &[CellSummary]) ->
             s.seeds - s.missed_detections,
             opt(s.detection_delay_mean),
             opt(s.isolation_correct),
-            "",
             s.false_alarms_per_hour,
             opt(s.recover_time_mean),
             s.worse_than_no_ft,

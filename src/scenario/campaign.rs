@@ -501,8 +501,11 @@ impl Campaign {
             return Err(bad("arms", "at most 1000".into()));
         }
         let v = &config.verdict;
-        if !(v.tolerance > 0.0 && v.degraded >= v.tolerance && v.runaway >= v.degraded)
-            || !(v.tolerance.is_finite() && v.runaway.is_finite())
+        if !(v.tolerance > 0.0
+            && v.degraded >= v.tolerance
+            && v.runaway >= v.degraded
+            && v.tolerance.is_finite()
+            && v.runaway.is_finite())
         {
             return Err(bad(
                 "verdict",
