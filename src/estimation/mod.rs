@@ -13,6 +13,9 @@
 //! adaptive filter ([`kalman`]), and an interacting-multiple-model bank ([`imm`]). A new
 //! estimator plugs in by implementing the trait; the runner does not change.
 
+pub mod hybrid;
+pub mod imm;
+pub mod kalman;
 pub mod uaic;
 
 use nalgebra::DMatrix;

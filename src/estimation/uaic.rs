@@ -40,6 +40,19 @@ pub enum UpdateScheme {
     Gradient,
 }
 
+/// How the state prior's precision is set.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum PriorMode {
+    /// Fixed diagonal precisions P_mu, P_mu' (the paper's).
+    #[default]
+    Fixed,
+    /// The precision a Kalman filter would carry: the inverse of A Sigma A' + Q, with Sigma the
+    /// last update's Laplace posterior covariance H^-1 and Q the white-acceleration process
+    /// noise of the acceleration bound (docs/method.md, "Propagated prior").
+    Propagated,
+}
+
 /// Which state prediction the prior uses.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -70,6 +83,10 @@ pub struct UaicConfig {
     /// starts at the first (noisy) readings, and a full-strength prior would hold that noise
     /// for about P_mu / encoder precision ticks. 0 disables the ramp.
     pub prior_warmup_ticks: u64,
+    /// Fixed or propagated prior precision.
+    pub prior: PriorMode,
+    /// The propagated prior's process noise: acceleration as one standard deviation (rad/s^2).
+    pub process_acceleration: f64,
 }
 
 impl Default for UaicConfig {
@@ -82,6 +99,8 @@ impl Default for UaicConfig {
             prior_position_precision: 1e8,
             prior_velocity_precision: 25.0,
             prior_warmup_ticks: 100,
+            prior: PriorMode::Fixed,
+            process_acceleration: 200.0,
         }
     }
 }
@@ -102,6 +121,13 @@ impl UaicConfig {
         }
         positive("kappa_mu", self.kappa_mu)?;
         positive("prior_position_precision", self.prior_position_precision)?;
+        positive("process_acceleration", self.process_acceleration)?;
+        if self.prior == PriorMode::Propagated && self.update != UpdateScheme::GaussNewton {
+            return Err((
+                "prior".into(),
+                "\"propagated\" needs update = \"gauss-newton\"".into(),
+            ));
+        }
         positive("prior_velocity_precision", self.prior_velocity_precision)?;
         if self.prior_warmup_ticks > 1_000_000_000 {
             return Err(("prior_warmup_ticks".into(), "must be <= 1e9 ticks".into()));
@@ -136,6 +162,9 @@ pub struct Uaic {
     factor: DMatrix<f64>,
     /// The prior residual e_x.
     ex: Vec<f64>,
+    /// The propagated prior's precision matrix and its scratch.
+    prior_info: DMatrix<f64>,
+    prior_cov: DMatrix<f64>,
     /// The camera model at the update point, and its first-order value at the new belief.
     g_point: Vec<f64>,
     g_post: Vec<f64>,
@@ -172,6 +201,8 @@ impl Uaic {
             candidate: DVector::zeros(2 * n),
             factor: DMatrix::zeros(2 * n, 2 * n),
             ex: vec![0.0; 2 * n],
+            prior_info: DMatrix::zeros(2 * n, 2 * n),
+            prior_cov: DMatrix::zeros(2 * n, 2 * n),
             g_point: vec![0.0; r],
             g_post: vec![0.0; r],
             jac: vec![0.0; r * n],
@@ -198,6 +229,61 @@ impl Uaic {
         self.x_prev.copy_from(&self.x);
         self.initialised = true;
         self.updates = 0;
+    }
+
+    /// Moves the belief to `x` (and, with a propagated prior, its covariance to `covariance`):
+    /// re-anchoring from an estimate that never used a channel found faulty.
+    pub fn reanchor(&mut self, x: &[f64], covariance: Option<&DMatrix<f64>>) {
+        self.x.copy_from_slice(x);
+        self.x_prev.copy_from_slice(x);
+        if let Some(c) = covariance {
+            self.covariance.copy_from(c);
+        }
+    }
+
+    /// The propagated prior: prior_info = (A Sigma A' + Q)^-1, Sigma the last posterior (or,
+    /// at the first tick, each reading's variance).
+    fn propagate_prior(&mut self, precisions: &[f64]) {
+        let n = self.layout.n_joints();
+        let dt = self.dt;
+        if self.updates == 0 {
+            self.covariance.fill(0.0);
+            for i in 0..n {
+                for k in [i, n + i] {
+                    let w = precisions[k];
+                    self.covariance[(k, k)] = if w > 0.0 { 1.0 / w } else { 1.0 };
+                }
+            }
+        }
+        let s = &self.covariance;
+        let q = &mut self.prior_cov;
+        for r in 0..n {
+            for c in 0..n {
+                let (pqq, pqv, pvq, pvv) = (s[(r, c)], s[(r, n + c)], s[(n + r, c)], s[(n + r, n + c)]);
+                q[(r, c)] = pqq + dt * (pqv + pvq) + dt * dt * pvv;
+                q[(r, n + c)] = pqv + dt * pvv;
+                q[(n + r, c)] = pvq + dt * pvv;
+                q[(n + r, n + c)] = pvv;
+            }
+        }
+        let s2 = self.config.process_acceleration.powi(2);
+        for i in 0..n {
+            q[(i, i)] += s2 * dt.powi(4) / 4.0;
+            q[(i, n + i)] += s2 * dt.powi(3) / 2.0;
+            q[(n + i, i)] += s2 * dt.powi(3) / 2.0;
+            q[(n + i, n + i)] += s2 * dt * dt;
+        }
+        match self.prior_cov.clone().cholesky() {
+            Some(ch) => self.prior_info = ch.inverse(),
+            None => {
+                // A degenerate covariance: fall back to the fixed diagonal prior.
+                self.prior_info.fill(0.0);
+                for i in 0..n {
+                    self.prior_info[(i, i)] = self.config.prior_position_precision;
+                    self.prior_info[(n + i, n + i)] = self.config.prior_velocity_precision;
+                }
+            }
+        }
     }
 
     /// The prior precisions (P_mu, P_mu') in force, with the warm-up ramp applied.
@@ -250,6 +336,10 @@ impl Uaic {
     /// Fills the prior's Hessian (A' P_x A) into `self.hessian`.
     fn prior_hessian(&mut self) {
         let n = self.layout.n_joints();
+        if self.config.prior == PriorMode::Propagated {
+            self.hessian.copy_from(&self.prior_info);
+            return;
+        }
         let (pm, pv) = self.prior_precisions();
         self.hessian.fill(0.0);
         for i in 0..n {
@@ -374,6 +464,9 @@ impl Uaic {
                     .predict(&self.point.as_slice()[..n], &mut g, &mut self.jac);
             }
         }
+        if self.config.prior == PriorMode::Propagated {
+            self.propagate_prior(precisions);
+        }
         self.prior_hessian();
         self.rhs.fill(0.0);
         for c in 0..m {
@@ -449,11 +542,30 @@ impl Uaic {
             }
         }
         let mut ex = std::mem::take(&mut self.ex);
-        self.prior_residual(&self.x, &self.x_prev, &mut ex);
-        let (pm, pv) = self.prior_precisions();
-        for i in 0..n {
-            free_energy += 0.5 * (pm * ex[i] * ex[i] - pm.ln());
-            free_energy += 0.5 * (pv * ex[n + i] * ex[n + i] - pv.ln());
+        if self.config.prior == PriorMode::Propagated {
+            // e_x = x - x_hat; 1/2 (e_x' Lambda e_x - ln |Lambda|).
+            for i in 0..2 * n {
+                ex[i] = self.x[i] - self.x_hat[i];
+            }
+            let mut quad = 0.0;
+            for a in 0..2 * n {
+                for b in 0..2 * n {
+                    quad += ex[a] * self.prior_info[(a, b)] * ex[b];
+                }
+            }
+            let log_det = self
+                .prior_info
+                .clone()
+                .cholesky()
+                .map_or(0.0, |c| 2.0 * c.l().diagonal().iter().map(|d| d.ln()).sum::<f64>());
+            free_energy += 0.5 * (quad - log_det);
+        } else {
+            self.prior_residual(&self.x, &self.x_prev, &mut ex);
+            let (pm, pv) = self.prior_precisions();
+            for i in 0..n {
+                free_energy += 0.5 * (pm * ex[i] * ex[i] - pm.ln());
+                free_energy += 0.5 * (pv * ex[n + i] * ex[n + i] - pv.ln());
+            }
         }
         self.ex = ex;
         self.report.free_energy = Some(free_energy);

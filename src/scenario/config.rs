@@ -46,6 +46,12 @@ pub struct Scenario {
     pub precision: PrecisionConfig,
     #[serde(default)]
     pub detector: DetectorSettings,
+    /// Settings of the Kalman-filter baselines (`ekf-gate`, `vb-akf`, `imm`).
+    #[serde(default)]
+    pub kalman: crate::estimation::kalman::KalmanConfig,
+    /// Settings of `hybrid`.
+    #[serde(default)]
+    pub hybrid: crate::estimation::hybrid::HybridConfig,
     #[serde(default)]
     pub faults: Vec<FaultSpec>,
 }
@@ -207,6 +213,9 @@ pub struct ControllerConfig {
     pub prior_velocity_precision: Option<f64>,
     /// Ticks over which the prior's precisions ramp up (0: no ramp).
     pub prior_warmup_ticks: u64,
+    /// `fixed` (P_mu, P_mu') or `propagated` (a Kalman filter's prior precision, its process
+    /// noise from `acceleration_bound`).
+    pub prior: crate::estimation::uaic::PriorMode,
     /// Finite action gain kappa_u (1/s); absent: u = f* (the authors' kappa_u -> infinity).
     pub kappa_u: Option<f64>,
     /// Control precision P_u, used with a finite kappa_u.
@@ -230,6 +239,7 @@ impl Default for ControllerConfig {
             prior_position_precision: None,
             prior_velocity_precision: None,
             prior_warmup_ticks: b.prior_warmup_ticks,
+            prior: b.prior,
             kappa_u: c.kappa_u,
             control_precision: c.control_precision,
             gains: c.gains,
@@ -261,6 +271,8 @@ impl ControllerConfig {
             prior_position_precision: pm,
             prior_velocity_precision: pv,
             prior_warmup_ticks: self.prior_warmup_ticks,
+            prior: self.prior,
+            process_acceleration: self.acceleration_bound,
         }
     }
 
@@ -617,6 +629,12 @@ impl Scenario {
             .config()
             .validate()
             .map_err(|(f, m)| bad(&format!("detector.{f}"), m))?;
+        self.kalman
+            .validate()
+            .map_err(|(f, m)| bad(&format!("kalman.{f}"), m))?;
+        self.hybrid
+            .validate()
+            .map_err(|(f, m)| bad(&format!("hybrid.{f}"), m))?;
         if self.faults.len() > MAX_FAULTS {
             return Err(bad("faults", format!("at most {MAX_FAULTS}")));
         }

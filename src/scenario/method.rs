@@ -11,12 +11,14 @@ use serde::{Deserialize, Serialize};
 
 use super::{RunSetup, ScenarioError};
 use crate::estimation::Estimator;
-use crate::estimation::uaic::Uaic;
+use crate::estimation::imm::Imm;
+use crate::estimation::kalman::{Ekf, EkfGate, VbAkf};
+use crate::estimation::uaic::{PriorMode, Uaic};
 use crate::precision::{
-    Bayes, Calibration, Detector, Deterministic, Fixed, GatedLearning, Gradient, Oracle,
+    Bayes, Calibration, Detector, Deterministic, Fixed, GatedLearning, Gradient, Oracle, PerGroup,
     PrecisionMethod, Window,
 };
-use crate::sensors::ChannelLayout;
+use crate::sensors::{ChannelLayout, SensorGroup};
 
 /// A fault-tolerance method.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, PartialOrd, Ord)]
@@ -36,6 +38,15 @@ pub enum Method {
     Window,
     /// Told each fault's channels and window: the reference, not a usable method.
     Oracle,
+    /// Extended Kalman filter with chi-square gating, exclusion and re-admission per channel.
+    EkfGate,
+    /// The variational-Bayes adaptive Kalman filter (Sarkka and Nummenmaa 2009).
+    VbAkf,
+    /// Interacting multiple models: one hypothesis per channel failing, and the nominal one.
+    Imm,
+    /// Active inference at every fault site: u-AIC belief with a propagated prior, encoder and
+    /// tachometer precisions from a bank of failure hypotheses, gradient-learned camera.
+    Hybrid,
 }
 
 /// What a method is.
@@ -52,13 +63,17 @@ pub struct MethodInfo {
 
 impl Method {
     /// Every method, in table order.
-    pub const ALL: [Method; 7] = [
+    pub const ALL: [Method; 11] = [
         Method::NoFt,
         Method::PlAlways,
         Method::PlDetect,
         Method::Deterministic,
         Method::Bayes,
         Method::Window,
+        Method::Hybrid,
+        Method::EkfGate,
+        Method::VbAkf,
+        Method::Imm,
         Method::Oracle,
     ];
 
@@ -103,6 +118,30 @@ impl Method {
             Self::Oracle => (
                 "oracle",
                 "u-AIC told each fault's channels and window (the reference)",
+                false,
+                None,
+            ),
+            Self::EkfGate => (
+                "ekf-gate",
+                "extended Kalman filter, chi-square gating with exclusion and re-admission",
+                false,
+                None,
+            ),
+            Self::VbAkf => (
+                "vb-akf",
+                "variational-Bayes adaptive Kalman filter (Sarkka and Nummenmaa 2009)",
+                false,
+                None,
+            ),
+            Self::Imm => (
+                "imm",
+                "interacting multiple models, a hypothesis per failing channel",
+                false,
+                None,
+            ),
+            Self::Hybrid => (
+                "hybrid",
+                "u-AIC, propagated prior, a bank of failure hypotheses for encoders and tachometers, gradient-learned camera",
                 false,
                 None,
             ),
@@ -180,6 +219,58 @@ pub fn build(method: Method, ctx: &MethodContext<'_>) -> Result<MethodParts, Sce
         ))
     };
     let gradient = || Gradient::new(nominal, p.kappa_zeta, p.correction, bounds);
+    let kc = &sc.kalman;
+    let ekf = || {
+        Ekf::new(
+            *ctx.layout,
+            ctx.setup.gp.clone(),
+            sc.dt,
+            kc.acceleration_noise
+                .unwrap_or(sc.controller.acceleration_bound),
+        )
+    };
+    let fixed = || -> Box<dyn PrecisionMethod> { Box::new(Fixed::new(nominal)) };
+    match method {
+        Method::EkfGate => {
+            return Ok((Box::new(EkfGate::new(ekf(), kc.clone(), None)), fixed()));
+        }
+        Method::VbAkf => {
+            return Ok((
+                Box::new(VbAkf::new(ekf(), kc, None, nominal, bounds.min_ratio)),
+                fixed(),
+            ));
+        }
+        Method::Imm => return Ok((Box::new(Imm::new(ekf(), kc, None, nominal)), fixed())),
+        Method::Hybrid => {
+            let mut belief = sc.controller.uaic(sc.dt);
+            belief.prior = PriorMode::Propagated;
+            let uaic = Uaic::new(belief, *ctx.layout, ctx.setup.gp.clone(), sc.dt);
+            let hybrid = crate::estimation::hybrid::build(
+                uaic,
+                *ctx.layout,
+                ctx.setup.gp.clone(),
+                sc.dt,
+                sc.controller.acceleration_bound,
+                &ctx.setup.model,
+                sc.robot.gravity,
+                &sc.hybrid,
+                nominal,
+                bounds.min_ratio,
+            );
+            let camera = PerGroup::new(
+                ctx.layout,
+                vec![
+                    (
+                        vec![SensorGroup::Encoders, SensorGroup::Tachometers],
+                        fixed(),
+                    ),
+                    (vec![SensorGroup::Camera], Box::new(gradient())),
+                ],
+            );
+            return Ok((Box::new(hybrid), Box::new(camera)));
+        }
+        _ => {}
+    }
     let precision: Box<dyn PrecisionMethod> = match method {
         Method::NoFt => Box::new(Fixed::new(nominal)),
         Method::PlAlways => Box::new(gradient()),
@@ -196,6 +287,9 @@ pub fn build(method: Method, ctx: &MethodContext<'_>) -> Result<MethodParts, Sce
                 .map(|f| (f.channels.clone(), f.start_tick(dt), f.end_tick(dt)))
                 .collect();
             Box::new(Oracle::new(nominal, windows))
+        }
+        Method::EkfGate | Method::VbAkf | Method::Imm | Method::Hybrid => {
+            unreachable!("built above")
         }
     };
     Ok((uaic(), precision))

@@ -1,0 +1,220 @@
+//! `imm`: the interacting-multiple-model estimator (Blom and Bar-Shalom 1988) over sensor-fault
+//! hypotheses: H_0 with every channel's nominal noise, and one hypothesis per channel in which
+//! that channel's noise standard deviation is `imm_broad` times its nominal (a failed sensor). Each
+//! hypothesis is an extended Kalman filter ([`super::kalman::Ekf`]); every tick the filters are
+//! mixed with a Markov switching matrix (stay with probability 1 - p, leave to each other with
+//! p / (M - 1)), predicted, updated, and weighed by their innovation likelihoods; the belief is the
+//! probability-weighted mixture (docs/method.md, "Classical baselines"). A channel's reported
+//! precision is its nominal precision times the probability that it is not the failed one.
+
+use nalgebra::{DMatrix, DVector};
+
+use super::kalman::{ArmDynamics, Ekf, KalmanConfig};
+use super::{Estimate, Estimator, EstimatorInput};
+
+/// The multiple-model estimator.
+pub struct Imm {
+    filters: Vec<Ekf>,
+    /// Per hypothesis: each channel's noise variance (infinite: left out by the caller).
+    variances: Vec<Vec<f64>>,
+    probability: Vec<f64>,
+    switch: f64,
+    model: Option<ArmDynamics>,
+    nominal: Vec<f64>,
+    x: DVector<f64>,
+    p: DMatrix<f64>,
+    mixed_x: Vec<DVector<f64>>,
+    mixed_p: Vec<DMatrix<f64>>,
+    initialised: bool,
+    n: usize,
+    mu: Vec<f64>,
+    mu_p: Vec<f64>,
+    report: Estimate,
+    used: Vec<f64>,
+}
+
+impl Imm {
+    /// A bank built from `template` (an EKF with the model's noise), one hypothesis per channel.
+    pub fn new(
+        template: Ekf,
+        config: &KalmanConfig,
+        model: Option<ArmDynamics>,
+        nominal: &[f64],
+    ) -> Self {
+        let m = nominal.len();
+        let hypotheses = m + 1;
+        let base: Vec<f64> = nominal.iter().map(|w| 1.0 / w).collect();
+        let mut variances = vec![base.clone()];
+        for c in 0..m {
+            let mut v = base.clone();
+            v[c] *= config.imm_broad * config.imm_broad;
+            variances.push(v);
+        }
+        let mut probability = vec![(1e-3) / m as f64; hypotheses];
+        probability[0] = 1.0 - 1e-3;
+        let d = template.x.len();
+        let n = d / 2;
+        let mut report = Estimate::new(&template.layout());
+        report.precisions_used = nominal.to_vec();
+        Self {
+            filters: vec![template; hypotheses],
+            variances,
+            probability,
+            switch: config.imm_switch,
+            model,
+            nominal: nominal.to_vec(),
+            x: DVector::zeros(d),
+            p: DMatrix::zeros(d, d),
+            mixed_x: vec![DVector::zeros(d); hypotheses],
+            mixed_p: vec![DMatrix::zeros(d, d); hypotheses],
+            initialised: false,
+            n,
+            mu: vec![0.0; n],
+            mu_p: vec![0.0; n],
+            report,
+            used: nominal.to_vec(),
+        }
+    }
+
+    /// Each hypothesis' probability: H_0 first, then one per channel.
+    pub fn probabilities(&self) -> &[f64] {
+        &self.probability
+    }
+
+    /// The hypotheses' mixture of means and covariances into (x, p).
+    fn combine(&mut self) {
+        self.x.fill(0.0);
+        for (f, w) in self.filters.iter().zip(&self.probability) {
+            self.x.axpy(*w, &f.x, 1.0);
+        }
+        self.p.fill(0.0);
+        for (f, w) in self.filters.iter().zip(&self.probability) {
+            let d = &f.x - &self.x;
+            self.p += (&f.p + &d * d.transpose()) * *w;
+        }
+    }
+}
+
+impl Estimator for Imm {
+    fn update(&mut self, input: &EstimatorInput<'_>) -> &Estimate {
+        let h = self.filters.len();
+        let m = self.nominal.len();
+        // Channels the caller leaves out (precision 0) are left out of every hypothesis.
+        let off: Vec<bool> = input.precisions.iter().map(|w| *w <= 0.0).collect();
+        let variance = |hyp: &[f64], c: usize| if off[c] { f64::INFINITY } else { hyp[c] };
+        if !self.initialised {
+            for (f, v) in self.filters.iter_mut().zip(&self.variances) {
+                let vv: Vec<f64> = (0..m).map(|c| variance(v, c)).collect();
+                f.initialise(input.readings, &vv);
+            }
+            self.initialised = true;
+        } else {
+            // Mixing: c_j = sum_i pi_ij p_i; each filter restarts from the mixture conditioned on j.
+            let stay = 1.0 - self.switch;
+            let leave = self.switch / (h - 1) as f64;
+            let pi = |i: usize, j: usize| if i == j { stay } else { leave };
+            for j in 0..h {
+                let cj: f64 = (0..h).map(|i| pi(i, j) * self.probability[i]).sum();
+                self.mixed_x[j].fill(0.0);
+                for i in 0..h {
+                    let w = pi(i, j) * self.probability[i] / cj;
+                    self.mixed_x[j].axpy(w, &self.filters[i].x, 1.0);
+                }
+                self.mixed_p[j].fill(0.0);
+                for i in 0..h {
+                    let w = pi(i, j) * self.probability[i] / cj;
+                    let d = &self.filters[i].x - &self.mixed_x[j];
+                    self.mixed_p[j] += (&self.filters[i].p + &d * d.transpose()) * w;
+                }
+            }
+            for j in 0..h {
+                self.filters[j].x.copy_from(&self.mixed_x[j]);
+                self.filters[j].p.copy_from(&self.mixed_p[j]);
+            }
+            let predicted: Vec<f64> = (0..h)
+                .map(|j| {
+                    (0..h)
+                        .map(|i| pi(i, j) * self.probability[i])
+                        .sum::<f64>()
+                })
+                .collect();
+            self.probability = predicted;
+            // One model acceleration per tick, at the combined belief.
+            let acc = match &mut self.model {
+                Some(model) => {
+                    let n = self.n;
+                    model
+                        .acceleration(&self.x.as_slice()[..n], &self.x.as_slice()[n..], input.applied_torques)
+                        .map(<[f64]>::to_vec)
+                }
+                None => None,
+            };
+            for f in &mut self.filters {
+                f.predict(acc.as_deref());
+            }
+        }
+        let mut log_like = vec![0.0; h];
+        for (j, f) in self.filters.iter_mut().enumerate() {
+            let vv: Vec<f64> = (0..m).map(|c| variance(&self.variances[j], c)).collect();
+            f.linearise();
+            if j == 0 {
+                f.record_innovations(input.readings, &vv);
+            }
+            log_like[j] = f.update(input.readings, &vv);
+        }
+        let best = log_like.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        let mut total = 0.0;
+        for j in 0..h {
+            self.probability[j] *= (log_like[j] - best).exp();
+            total += self.probability[j];
+        }
+        for p in &mut self.probability {
+            *p = (*p / total).max(1e-12);
+        }
+        let sum: f64 = self.probability.iter().sum();
+        for p in &mut self.probability {
+            *p /= sum;
+        }
+        self.combine();
+        // Report: innovations of H_0's prediction; residuals at the combined belief.
+        self.report.innovations.clone_from(&self.filters[0].innovation);
+        self.report
+            .innovation_variances
+            .clone_from(&self.filters[0].innovation_variance);
+        let mut combined = self.filters[0].clone();
+        combined.x.copy_from(&self.x);
+        combined.p.copy_from(&self.p);
+        combined.linearise();
+        combined.report_posterior(input.readings, &mut self.report);
+        for c in 0..m {
+            self.used[c] = if off[c] {
+                0.0
+            } else {
+                self.nominal[c] * (1.0 - self.probability[c + 1])
+            };
+        }
+        self.report.precisions_used.copy_from_slice(&self.used);
+        self.report.log_likelihood = Some(best + total.ln());
+        self.report.free_energy = None;
+        self.report.finite = self.x.iter().all(|v| v.is_finite());
+        let n = self.n;
+        if self.report.finite {
+            self.mu.copy_from_slice(&self.x.as_slice()[..n]);
+            self.mu_p.copy_from_slice(&self.x.as_slice()[n..]);
+        }
+        &self.report
+    }
+
+    fn estimate(&self) -> &Estimate {
+        &self.report
+    }
+    fn mu(&self) -> &[f64] {
+        &self.mu
+    }
+    fn mu_p(&self) -> &[f64] {
+        &self.mu_p
+    }
+    fn covariance(&self) -> Option<&DMatrix<f64>> {
+        Some(&self.p)
+    }
+}

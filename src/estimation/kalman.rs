@@ -1,0 +1,669 @@
+//! Kalman filters on the joint state x = [q, qd]: the extended Kalman filter the classical
+//! baselines share ([`Ekf`]), and two of them as estimators, `ekf-gate` ([`EkfGate`]: chi-square
+//! gating per channel, exclusion and re-admission) and `vb-akf` ([`VbAkf`]: the variational-Bayes
+//! adaptive filter of Sarkka and Nummenmaa 2009, per-channel noise variances with forgetting)
+//! (docs/method.md, "Classical baselines").
+//!
+//! The model: constant velocity with white acceleration noise (the discrete white-noise
+//! acceleration model, Q_j = s_a^2 [[dt^4/4, dt^3/2], [dt^3/2, dt^2]] per joint, s_a the
+//! acceleration bound of the u-AIC's prior), or, when an arm model is given, the arm's own
+//! dynamics driven by the applied torques (qdd = M^-1 (u - C qd - G - D qd), s_a then the
+//! model's acceleration error). Encoders and tachometers measure q and qd; the camera g_v(q)
+//! through the GP, linearised at the prediction. Measurements are processed one channel at a
+//! time (diagonal noise), which equals the batch update of the linearised model.
+
+use std::sync::Arc;
+
+use nalgebra::{DMatrix, DVector};
+use serde::{Deserialize, Serialize};
+
+use super::{Estimate, Estimator, EstimatorInput};
+use crate::gp::GpModel;
+use crate::plant::{ArmModel, Chain};
+use crate::sensors::{Channel, ChannelLayout, Readings};
+
+/// Settings of the Kalman-filter baselines (the `[kalman]` section).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct KalmanConfig {
+    /// Process noise: the acceleration (rad/s^2) treated as one standard deviation; absent: the
+    /// u-AIC's `controller.acceleration_bound`.
+    pub acceleration_noise: Option<f64>,
+    /// Chi-square gate on a channel's normalised innovation nu^2 / S (1 degree of freedom;
+    /// 10.83 is the 99.9 % point).
+    pub gate: f64,
+    /// Ticks beyond the gate in a row before a channel is excluded.
+    pub exclude_after: u64,
+    /// Ticks within the gate in a row before an excluded channel is re-admitted.
+    pub readmit_after: u64,
+    /// Variational iterations per tick of `vb-akf`.
+    pub vb_iterations: usize,
+    /// Forgetting factor of `vb-akf` (memory about 1 / (1 - rho) ticks).
+    pub vb_rho: f64,
+    /// Per-tick probability of leaving a hypothesis, `imm`.
+    pub imm_switch: f64,
+    /// A hypothesis' faulty channel: noise standard deviation this many times the nominal.
+    pub imm_broad: f64,
+}
+
+impl Default for KalmanConfig {
+    fn default() -> Self {
+        Self {
+            acceleration_noise: None,
+            gate: 10.83,
+            exclude_after: 5,
+            readmit_after: 500,
+            vb_iterations: 3,
+            vb_rho: 0.999,
+            imm_switch: 1e-4,
+            imm_broad: 1000.0,
+        }
+    }
+}
+
+impl KalmanConfig {
+    pub fn validate(&self) -> Result<(), (&'static str, String)> {
+        if let Some(a) = self.acceleration_noise
+            && !(a.is_finite() && a > 0.0 && a <= 1e9)
+        {
+            return Err(("acceleration_noise", "must be finite, > 0 and <= 1e9".into()));
+        }
+        if !(self.gate.is_finite() && self.gate > 0.0) {
+            return Err(("gate", "must be finite and > 0".into()));
+        }
+        if self.exclude_after == 0 || self.exclude_after > 1_000_000_000 {
+            return Err(("exclude_after", "must be in 1..=1e9".into()));
+        }
+        if self.readmit_after == 0 || self.readmit_after > 1_000_000_000 {
+            return Err(("readmit_after", "must be in 1..=1e9".into()));
+        }
+        if !(1..=100).contains(&self.vb_iterations) {
+            return Err(("vb_iterations", "must be in 1..=100".into()));
+        }
+        if !(self.vb_rho > 0.0 && self.vb_rho < 1.0) {
+            return Err(("vb_rho", "must be in (0, 1)".into()));
+        }
+        if !(self.imm_switch > 0.0 && self.imm_switch < 0.5) {
+            return Err(("imm_switch", "must be in (0, 0.5)".into()));
+        }
+        if !(self.imm_broad.is_finite() && self.imm_broad > 1.0 && self.imm_broad <= 1e9) {
+            return Err(("imm_broad", "must be in (1, 1e9]".into()));
+        }
+        Ok(())
+    }
+}
+
+/// The arm's dynamics as a prediction model (a copy of the URDF's model, possibly with its
+/// masses scaled: the model error a user would have).
+pub struct ArmDynamics {
+    chain: Chain,
+    gravity: nalgebra::Vector3<f64>,
+    acc: Vec<f64>,
+    damping: Vec<f64>,
+}
+
+impl ArmDynamics {
+    /// The dynamics of `model` with every body's mass and inertia scaled by `mass_scale`.
+    pub fn new(model: &ArmModel, gravity: [f64; 3], mass_scale: f64) -> Self {
+        let mut m = model.clone();
+        for b in &mut m.bodies {
+            b.mass *= mass_scale;
+            b.inertia *= mass_scale;
+        }
+        let n = m.joints.len();
+        Self {
+            damping: m.joints.iter().map(|j| j.damping).collect(),
+            chain: Chain::new(&m),
+            gravity: nalgebra::Vector3::from(gravity),
+            acc: vec![0.0; n],
+        }
+    }
+
+    /// qdd at (q, qd) under torques u; None if the mass matrix is singular.
+    pub fn acceleration(&mut self, q: &[f64], qd: &[f64], u: &[f64]) -> Option<&[f64]> {
+        self.chain.set_state(q, qd);
+        let (m, bias) = self.chain.mass_matrix_and_bias(&self.gravity);
+        let rhs = DVector::from_iterator(
+            u.len(),
+            (0..u.len()).map(|i| u[i] - bias[i] - self.damping[i] * qd[i]),
+        );
+        let sol = m.cholesky()?.solve(&rhs);
+        self.acc.copy_from_slice(sol.as_slice());
+        Some(&self.acc)
+    }
+
+    pub fn damping(&self) -> &[f64] {
+        &self.damping
+    }
+}
+
+/// The extended Kalman filter on [q, qd].
+#[derive(Clone, Debug)]
+pub struct Ekf {
+    layout: ChannelLayout,
+    gp: Arc<GpModel>,
+    dt: f64,
+    /// Acceleration noise s_a (rad/s^2).
+    accel_noise: f64,
+    pub x: DVector<f64>,
+    pub p: DMatrix<f64>,
+    initialised: bool,
+    // Scratch.
+    x_pred: DVector<f64>,
+    p_pred: DMatrix<f64>,
+    g: Vec<f64>,
+    jac: Vec<f64>,
+    ph: DVector<f64>,
+    /// Per channel: the prediction's innovation and its variance (with the channel's noise).
+    pub innovation: Vec<Option<f64>>,
+    pub innovation_variance: Vec<Option<f64>>,
+}
+
+impl Ekf {
+    pub fn new(layout: ChannelLayout, gp: Arc<GpModel>, dt: f64, accel_noise: f64) -> Self {
+        let d = 2 * layout.n_joints();
+        let r = layout.camera_outputs();
+        Self {
+            layout,
+            gp,
+            dt,
+            accel_noise,
+            x: DVector::zeros(d),
+            p: DMatrix::zeros(d, d),
+            initialised: false,
+            x_pred: DVector::zeros(d),
+            p_pred: DMatrix::zeros(d, d),
+            g: vec![0.0; r],
+            jac: vec![0.0; r * layout.n_joints()],
+            ph: DVector::zeros(d),
+            innovation: vec![None; layout.len()],
+            innovation_variance: vec![None; layout.len()],
+        }
+    }
+
+    pub fn n(&self) -> usize {
+        self.layout.n_joints()
+    }
+
+    pub fn layout(&self) -> ChannelLayout {
+        self.layout
+    }
+
+    pub fn initialised(&self) -> bool {
+        self.initialised
+    }
+
+    /// Starts at the first readings with a covariance of one reading's noise (a missing reading:
+    /// 0 with a variance of 1).
+    pub fn initialise(&mut self, readings: &Readings, variances: &[f64]) {
+        let n = self.n();
+        self.p.fill(0.0);
+        for i in 0..n {
+            for (k, c) in [(i, i), (n + i, n + i)] {
+                match readings.get(c) {
+                    Some(y) if variances[c].is_finite() => {
+                        self.x[k] = y;
+                        self.p[(k, k)] = variances[c];
+                    }
+                    _ => {
+                        self.x[k] = 0.0;
+                        self.p[(k, k)] = 1.0;
+                    }
+                }
+            }
+        }
+        self.initialised = true;
+    }
+
+    /// Prediction over one tick: constant velocity, or with the model's acceleration `acc`
+    /// (and its velocity damping `-dt M^-1 D` left out of the Jacobian: small at 1 ms).
+    pub fn predict(&mut self, acc: Option<&[f64]>) {
+        let n = self.n();
+        let dt = self.dt;
+        for i in 0..n {
+            let a = acc.map_or(0.0, |a| a[i]);
+            self.x_pred[i] = self.x[i] + dt * self.x[n + i] + 0.5 * dt * dt * a;
+            self.x_pred[n + i] = self.x[n + i] + dt * a;
+        }
+        // P = F P F' + Q with F = [[I, dt I], [0, I]], written out by blocks.
+        let p = &self.p;
+        let q = &mut self.p_pred;
+        for r in 0..n {
+            for c in 0..n {
+                let (pqq, pqv, pvq, pvv) = (p[(r, c)], p[(r, n + c)], p[(n + r, c)], p[(n + r, n + c)]);
+                q[(r, c)] = pqq + dt * (pqv + pvq) + dt * dt * pvv;
+                q[(r, n + c)] = pqv + dt * pvv;
+                q[(n + r, c)] = pvq + dt * pvv;
+                q[(n + r, n + c)] = pvv;
+            }
+        }
+        let s2 = self.accel_noise * self.accel_noise;
+        for i in 0..n {
+            q[(i, i)] += s2 * dt.powi(4) / 4.0;
+            q[(i, n + i)] += s2 * dt.powi(3) / 2.0;
+            q[(n + i, i)] += s2 * dt.powi(3) / 2.0;
+            q[(n + i, n + i)] += s2 * dt * dt;
+        }
+        self.x.copy_from(&self.x_pred);
+        self.p.copy_from(&self.p_pred);
+    }
+
+    /// The GP at the current mean (the linearisation point of the camera channels).
+    pub fn linearise(&mut self) {
+        let n = self.n();
+        self.gp.predict(&self.x.as_slice()[..n], &mut self.g, &mut self.jac);
+        self.x_pred.copy_from(&self.x);
+    }
+
+    /// The prediction of channel c at the current mean (camera: first order about the
+    /// linearisation point).
+    fn predicted(&self, c: usize) -> f64 {
+        let n = self.n();
+        match self.layout.channel(c) {
+            Channel::Encoder(i) => self.x[i],
+            Channel::Tachometer(i) => self.x[n + i],
+            Channel::Camera(r) => {
+                let mut v = self.g[r];
+                for d in 0..n {
+                    v += self.jac[r * n + d] * (self.x[d] - self.x_pred[d]);
+                }
+                v
+            }
+        }
+    }
+
+    /// H_c P H_c' with the current covariance.
+    pub fn projected_variance(&self, c: usize) -> f64 {
+        let n = self.n();
+        match self.layout.channel(c) {
+            Channel::Encoder(i) => self.p[(i, i)],
+            Channel::Tachometer(i) => self.p[(n + i, n + i)],
+            Channel::Camera(r) => {
+                let row = &self.jac[r * n..(r + 1) * n];
+                let mut s = 0.0;
+                for a in 0..n {
+                    for b in 0..n {
+                        s += row[a] * self.p[(a, b)] * row[b];
+                    }
+                }
+                s
+            }
+        }
+    }
+
+    /// P H_c' into `ph`.
+    fn p_h(&mut self, c: usize) {
+        let n = self.n();
+        match self.layout.channel(c) {
+            Channel::Encoder(i) => self.ph.copy_from(&self.p.column(i)),
+            Channel::Tachometer(i) => self.ph.copy_from(&self.p.column(n + i)),
+            Channel::Camera(r) => {
+                self.ph.fill(0.0);
+                for a in 0..2 * n {
+                    let mut s = 0.0;
+                    for b in 0..n {
+                        s += self.p[(a, b)] * self.jac[r * n + b];
+                    }
+                    self.ph[a] = s;
+                }
+            }
+        }
+    }
+
+    /// Records every channel's innovation against the current mean (the prediction) and its
+    /// variance with the channel's noise `variances` (infinite: left out).
+    pub fn record_innovations(&mut self, readings: &Readings, variances: &[f64]) {
+        for c in 0..self.layout.len() {
+            self.innovation[c] = readings.get(c).map(|y| y - self.predicted(c));
+            self.innovation_variance[c] = self.innovation[c].map(|_| {
+                let r = variances[c];
+                self.projected_variance(c) + if r.is_finite() { r } else { 0.0 }
+            });
+        }
+    }
+
+    /// One scalar update with channel c's reading y and noise variance r; returns the
+    /// log-likelihood of the innovation (without the 1/2 ln 2 pi constant).
+    pub fn update_channel(&mut self, c: usize, y: f64, r: f64) -> f64 {
+        let nu = y - self.predicted(c);
+        let s = self.projected_variance(c) + r;
+        if !(s.is_finite() && s > 0.0) {
+            return 0.0;
+        }
+        self.p_h(c);
+        let d = self.x.len();
+        for a in 0..d {
+            self.x[a] += self.ph[a] / s * nu;
+        }
+        for a in 0..d {
+            let ka = self.ph[a] / s;
+            for b in 0..d {
+                self.p[(a, b)] -= ka * self.ph[b];
+            }
+        }
+        // Keep P symmetric against rounding.
+        for a in 0..d {
+            for b in 0..a {
+                let v = 0.5 * (self.p[(a, b)] + self.p[(b, a)]);
+                self.p[(a, b)] = v;
+                self.p[(b, a)] = v;
+            }
+        }
+        -0.5 * (nu * nu / s + s.ln())
+    }
+
+    /// Updates with every present channel whose variance is finite; returns the total
+    /// log-likelihood.
+    pub fn update(&mut self, readings: &Readings, variances: &[f64]) -> f64 {
+        let mut ll = 0.0;
+        for c in 0..self.layout.len() {
+            if let Some(y) = readings.get(c)
+                && variances[c].is_finite()
+            {
+                ll += self.update_channel(c, y, variances[c]);
+            }
+        }
+        ll
+    }
+
+    /// Fills the post-update part of an [`Estimate`]: residuals and corrections.
+    pub fn report_posterior(&self, readings: &Readings, out: &mut Estimate) {
+        for c in 0..self.layout.len() {
+            out.residuals[c] = readings.get(c).map(|y| y - self.predicted(c));
+            out.corrections[c] = self.projected_variance(c);
+        }
+    }
+
+    /// Whether the mean and covariance are finite.
+    pub fn finite(&self) -> bool {
+        self.x.iter().all(|v| v.is_finite()) && self.p.iter().all(|v| v.is_finite())
+    }
+}
+
+/// Variance of each channel from its precision (0: infinite, left out).
+pub fn variances_of(precisions: &[f64], out: &mut [f64]) {
+    for (v, w) in out.iter_mut().zip(precisions) {
+        *v = if *w > 0.0 { 1.0 / w } else { f64::INFINITY };
+    }
+}
+
+/// `ekf-gate`: an EKF whose channels are gated on their normalised innovation: a reading beyond
+/// the gate is not used that tick; a channel beyond it for `exclude_after` ticks in a row is
+/// excluded (precision 0) until it has been within it for `readmit_after` ticks.
+pub struct EkfGate {
+    ekf: Ekf,
+    config: KalmanConfig,
+    model: Option<ArmDynamics>,
+    variances: Vec<f64>,
+    used: Vec<f64>,
+    beyond: Vec<u64>,
+    within: Vec<u64>,
+    excluded: Vec<bool>,
+    n: usize,
+    mu: Vec<f64>,
+    mu_p: Vec<f64>,
+    report: Estimate,
+}
+
+impl EkfGate {
+    pub fn new(ekf: Ekf, config: KalmanConfig, model: Option<ArmDynamics>) -> Self {
+        let layout = ekf.layout;
+        let m = layout.len();
+        let n = layout.n_joints();
+        Self {
+            ekf,
+            config,
+            model,
+            variances: vec![0.0; m],
+            used: vec![0.0; m],
+            beyond: vec![0; m],
+            within: vec![0; m],
+            excluded: vec![false; m],
+            n,
+            mu: vec![0.0; n],
+            mu_p: vec![0.0; n],
+            report: Estimate::new(&layout),
+        }
+    }
+}
+
+/// Predicts an EKF one tick with or without the arm model.
+fn predict_with(ekf: &mut Ekf, model: &mut Option<ArmDynamics>, torques: &[f64]) {
+    let n = ekf.n();
+    match model {
+        Some(m) => {
+            let (q, qd): (Vec<f64>, Vec<f64>) = (
+                ekf.x.as_slice()[..n].to_vec(),
+                ekf.x.as_slice()[n..].to_vec(),
+            );
+            let acc = m.acceleration(&q, &qd, torques).map(<[f64]>::to_vec);
+            ekf.predict(acc.as_deref());
+        }
+        None => ekf.predict(None),
+    }
+}
+
+impl Estimator for EkfGate {
+    fn update(&mut self, input: &EstimatorInput<'_>) -> &Estimate {
+        let m = self.variances.len();
+        variances_of(input.precisions, &mut self.variances);
+        if !self.ekf.initialised() {
+            self.ekf.initialise(input.readings, &self.variances);
+        } else {
+            predict_with(&mut self.ekf, &mut self.model, input.applied_torques);
+        }
+        self.ekf.linearise();
+        self.ekf
+            .record_innovations(input.readings, &self.variances);
+        for c in 0..m {
+            let nis = match (self.ekf.innovation[c], self.ekf.innovation_variance[c]) {
+                (Some(nu), Some(s)) if s > 0.0 && self.variances[c].is_finite() => nu * nu / s,
+                _ => {
+                    self.used[c] = 0.0;
+                    continue;
+                }
+            };
+            if nis > self.config.gate {
+                self.beyond[c] += 1;
+                self.within[c] = 0;
+            } else {
+                self.within[c] += 1;
+                self.beyond[c] = 0;
+            }
+            if self.excluded[c] && self.within[c] >= self.config.readmit_after {
+                self.excluded[c] = false;
+            }
+            if !self.excluded[c] && self.beyond[c] >= self.config.exclude_after {
+                self.excluded[c] = true;
+            }
+            let pass = !self.excluded[c] && nis <= self.config.gate;
+            self.used[c] = if pass { input.precisions[c] } else { 0.0 };
+        }
+        let mut ll = 0.0;
+        for c in 0..m {
+            if self.used[c] > 0.0
+                && let Some(y) = input.readings.get(c)
+            {
+                ll += self.ekf.update_channel(c, y, 1.0 / self.used[c]);
+            }
+        }
+        self.report.innovations.clone_from(&self.ekf.innovation);
+        self.report
+            .innovation_variances
+            .clone_from(&self.ekf.innovation_variance);
+        self.ekf.report_posterior(input.readings, &mut self.report);
+        self.report.precisions_used.copy_from_slice(&self.used);
+        self.report.log_likelihood = Some(ll);
+        self.report.free_energy = None;
+        self.report.finite = self.ekf.finite();
+        let n = self.n;
+        if self.report.finite {
+            self.mu.copy_from_slice(&self.ekf.x.as_slice()[..n]);
+            self.mu_p.copy_from_slice(&self.ekf.x.as_slice()[n..]);
+        }
+        &self.report
+    }
+
+    fn estimate(&self) -> &Estimate {
+        &self.report
+    }
+    fn mu(&self) -> &[f64] {
+        &self.mu
+    }
+    fn mu_p(&self) -> &[f64] {
+        &self.mu_p
+    }
+    fn covariance(&self) -> Option<&DMatrix<f64>> {
+        Some(&self.ekf.p)
+    }
+}
+
+/// `vb-akf`: the variational-Bayes adaptive Kalman filter (Sarkka and Nummenmaa 2009): each
+/// channel's noise variance has an inverse-Gamma posterior IG(alpha, beta), spread by the
+/// forgetting factor rho at every prediction (alpha <- rho alpha, beta <- rho beta); the update
+/// alternates, `vb_iterations` times, a Kalman update with R = beta / alpha and
+/// beta = beta_pred + 1/2 ((y - h(x))^2 + H P H'), alpha = alpha_pred + 1/2. Started at the
+/// nominal variance, with the healthy steady state alpha0 = 1 / (2 (1 - rho)); the precision
+/// alpha / beta is clamped to [1e-6, 1] x nominal like the u-AIC's learners.
+pub struct VbAkf {
+    ekf: Ekf,
+    rho: f64,
+    iterations: usize,
+    model: Option<ArmDynamics>,
+    nominal: Vec<f64>,
+    alpha: Vec<f64>,
+    beta: Vec<f64>,
+    alpha_pred: Vec<f64>,
+    beta_pred: Vec<f64>,
+    x0: DVector<f64>,
+    p0: DMatrix<f64>,
+    used: Vec<f64>,
+    n: usize,
+    mu: Vec<f64>,
+    mu_p: Vec<f64>,
+    report: Estimate,
+    min_ratio: f64,
+}
+
+impl VbAkf {
+    pub fn new(
+        ekf: Ekf,
+        config: &KalmanConfig,
+        model: Option<ArmDynamics>,
+        nominal: &[f64],
+        min_ratio: f64,
+    ) -> Self {
+        let layout = ekf.layout;
+        let n = layout.n_joints();
+        let d = 2 * n;
+        let a0 = 0.5 / (1.0 - config.vb_rho);
+        Self {
+            rho: config.vb_rho,
+            iterations: config.vb_iterations,
+            model,
+            alpha: vec![a0; nominal.len()],
+            beta: nominal.iter().map(|w| a0 / w).collect(),
+            alpha_pred: vec![0.0; nominal.len()],
+            beta_pred: vec![0.0; nominal.len()],
+            nominal: nominal.to_vec(),
+            x0: DVector::zeros(d),
+            p0: DMatrix::zeros(d, d),
+            used: nominal.to_vec(),
+            n,
+            mu: vec![0.0; n],
+            mu_p: vec![0.0; n],
+            report: Estimate::new(&layout),
+            ekf,
+            min_ratio,
+        }
+    }
+}
+
+impl VbAkf {
+    /// The precision in force for channel c (alpha / beta, clamped to [min_ratio, 1] x nominal).
+    fn precision(&self, c: usize) -> f64 {
+        (self.alpha[c] / self.beta[c]).clamp(self.min_ratio * self.nominal[c], self.nominal[c])
+    }
+}
+
+impl Estimator for VbAkf {
+    fn update(&mut self, input: &EstimatorInput<'_>) -> &Estimate {
+        let m = self.nominal.len();
+        let mut variances = vec![0.0; m];
+        let off = |c: usize| input.precisions[c] <= 0.0;
+        if !self.ekf.initialised() {
+            for c in 0..m {
+                variances[c] = if off(c) { f64::INFINITY } else { 1.0 / self.precision(c) };
+            }
+            self.ekf.initialise(input.readings, &variances);
+        } else {
+            predict_with(&mut self.ekf, &mut self.model, input.applied_torques);
+        }
+        // The noise parameters' prediction: forgetting spreads the posterior.
+        for c in 0..m {
+            self.alpha_pred[c] = self.rho * self.alpha[c];
+            self.beta_pred[c] = self.rho * self.beta[c];
+            self.alpha[c] = self.alpha_pred[c]
+                + if input.readings.get(c).is_some() { 0.5 } else { 0.0 };
+            self.beta[c] = self.beta_pred[c];
+        }
+        self.ekf.linearise();
+        self.x0.copy_from(&self.ekf.x);
+        self.p0.copy_from(&self.ekf.p);
+        for c in 0..m {
+            variances[c] = if off(c) { f64::INFINITY } else { 1.0 / self.precision(c) };
+        }
+        self.ekf.record_innovations(input.readings, &variances);
+        let mut ll = 0.0;
+        for _ in 0..self.iterations {
+            for c in 0..m {
+                variances[c] = if off(c) { f64::INFINITY } else { 1.0 / self.precision(c) };
+            }
+            self.ekf.x.copy_from(&self.x0);
+            self.ekf.p.copy_from(&self.p0);
+            ll = self.ekf.update(input.readings, &variances);
+            for c in 0..m {
+                if let Some(y) = input.readings.get(c) {
+                    let e = y - self.ekf.predicted(c);
+                    self.beta[c] =
+                        self.beta_pred[c] + 0.5 * (e * e + self.ekf.projected_variance(c));
+                }
+            }
+        }
+        for c in 0..m {
+            self.used[c] = if variances[c].is_finite() {
+                1.0 / variances[c]
+            } else {
+                0.0
+            };
+        }
+        self.report.innovations.clone_from(&self.ekf.innovation);
+        self.report
+            .innovation_variances
+            .clone_from(&self.ekf.innovation_variance);
+        self.ekf.report_posterior(input.readings, &mut self.report);
+        self.report.precisions_used.copy_from_slice(&self.used);
+        self.report.log_likelihood = Some(ll);
+        self.report.free_energy = None;
+        self.report.finite = self.ekf.finite();
+        let n = self.n;
+        if self.report.finite {
+            self.mu.copy_from_slice(&self.ekf.x.as_slice()[..n]);
+            self.mu_p.copy_from_slice(&self.ekf.x.as_slice()[n..]);
+        }
+        &self.report
+    }
+
+    fn estimate(&self) -> &Estimate {
+        &self.report
+    }
+    fn mu(&self) -> &[f64] {
+        &self.mu
+    }
+    fn mu_p(&self) -> &[f64] {
+        &self.mu_p
+    }
+    fn covariance(&self) -> Option<&DMatrix<f64>> {
+        Some(&self.ekf.p)
+    }
+}
