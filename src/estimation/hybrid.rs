@@ -46,6 +46,18 @@ pub enum BankModel {
     Dynamics,
 }
 
+/// How the hybrid sets the camera's precisions.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CameraPrecision {
+    /// A camera hypothesis in the bank (every output failed together, `camera_broad` times its
+    /// noise); the camera's precision is nominal x P(not failed), like the joint sensors'.
+    #[default]
+    Bank,
+    /// The seed paper's gradient rule on the u-AIC's camera residuals, fed back into the bank.
+    Gradient,
+}
+
 /// Settings of `hybrid` (the `[hybrid]` section).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -56,14 +68,27 @@ pub struct HybridConfig {
     /// The bank's process noise with the dynamics model: acceleration error (rad/s^2) as one
     /// standard deviation; with the constant-velocity model the acceleration bound is used.
     pub model_acceleration_noise: f64,
+    /// The model's relative acceleration error: each joint's process noise is
+    /// max(model_acceleration_noise, this x |predicted acceleration|) (0.1 covers masses 10 %
+    /// off and the integrator's own error in fast motion).
+    pub model_relative_error: f64,
     /// Per-tick probability of leaving a hypothesis.
     pub switch: f64,
     /// A failed channel's noise standard deviation, as a multiple of its nominal.
     pub broad: f64,
     /// The bank's camera noise as a multiple of the camera's (room for the GP's own error).
     pub camera_inflation: f64,
-    /// Re-anchor the belief when a failure hypothesis wins.
+    /// How the camera's precision is set.
+    pub camera: CameraPrecision,
+    /// The camera hypothesis' noise as a multiple of the camera's.
+    pub camera_broad: f64,
+    /// Re-anchor the belief when a failure hypothesis wins and the belief lies outside its
+    /// 3-sigma ellipsoid.
     pub reanchor: bool,
+    /// While a failure hypothesis keeps winning, every this many ticks the others restart from
+    /// its estimate (so that they ask "is the channel healthy from now on?", and a fault that
+    /// ends is seen to end); 0: never.
+    pub resync_ticks: u64,
 }
 
 impl Default for HybridConfig {
@@ -71,11 +96,15 @@ impl Default for HybridConfig {
         Self {
             bank_model: BankModel::Dynamics,
             mass_scale: 1.0,
-            model_acceleration_noise: 20.0,
+            model_acceleration_noise: 2.0,
+            model_relative_error: 0.1,
             switch: 1e-6,
             broad: 1000.0,
             camera_inflation: 1.2,
+            camera: CameraPrecision::Bank,
+            camera_broad: 10.0,
             reanchor: true,
+            resync_ticks: 500,
         }
     }
 }
@@ -91,6 +120,9 @@ impl HybridConfig {
         {
             return Err(("model_acceleration_noise", "must be in (0, 1e9]".into()));
         }
+        if !(self.model_relative_error.is_finite() && (0.0..=10.0).contains(&self.model_relative_error)) {
+            return Err(("model_relative_error", "must be in [0, 10]".into()));
+        }
         if !(self.switch > 0.0 && self.switch < 0.5) {
             return Err(("switch", "must be in (0, 0.5)".into()));
         }
@@ -99,6 +131,9 @@ impl HybridConfig {
         }
         if !(self.camera_inflation.is_finite() && self.camera_inflation >= 1.0 && self.camera_inflation <= 1e3) {
             return Err(("camera_inflation", "must be in [1, 1e3]".into()));
+        }
+        if !(self.camera_broad.is_finite() && self.camera_broad > 1.0 && self.camera_broad <= 1e9) {
+            return Err(("camera_broad", "must be in (1, 1e9]".into()));
         }
         Ok(())
     }
@@ -113,6 +148,7 @@ pub struct Hybrid {
     failed: Vec<Option<usize>>,
     probability: Vec<f64>,
     winner: usize,
+    winner_since: u64,
     model: Option<ArmDynamics>,
     config: HybridConfig,
     nominal: Vec<f64>,
@@ -134,11 +170,15 @@ impl Hybrid {
         floor: f64,
     ) -> Self {
         let layout = ekf.layout();
+        // Hypotheses: H_0; each encoder and tachometer; the camera as one (index = first output).
         let mut failed = vec![None];
         for c in 0..layout.len() {
             if !matches!(layout.channel(c), Channel::Camera(_)) {
                 failed.push(Some(c));
             }
+        }
+        if config.camera == CameraPrecision::Bank {
+            failed.push(Some(layout.group_range(crate::sensors::SensorGroup::Camera).start));
         }
         let h = failed.len();
         let mut probability = vec![1e-3 / (h - 1) as f64; h];
@@ -150,6 +190,7 @@ impl Hybrid {
             failed,
             probability,
             winner: 0,
+            winner_since: 0,
             model,
             config,
             nominal: nominal.to_vec(),
@@ -158,6 +199,25 @@ impl Hybrid {
             floor,
             initialised: false,
             ticks: 0,
+        }
+    }
+
+    /// Whether the belief lies outside hypothesis j's 3-sigma ellipsoid (with the belief's own
+    /// covariance added).
+    fn outside(&self, j: usize) -> bool {
+        let f = &self.bank[j];
+        let b = self.uaic.belief();
+        if b.len() != f.x.len() {
+            return false;
+        }
+        let d = nalgebra::DVector::from_iterator(b.len(), b.iter().zip(f.x.iter()).map(|(a, c)| a - c));
+        let mut s = f.p.clone();
+        if let Some(c) = self.uaic.covariance() {
+            s += c;
+        }
+        match s.cholesky() {
+            Some(ch) => ch.solve(&d).dot(&d) > 9.0 * b.len() as f64,
+            None => false,
         }
     }
 
@@ -173,9 +233,22 @@ impl Hybrid {
             self.variances[c] = match self.layout.channel(c) {
                 _ if w <= 0.0 => f64::INFINITY,
                 Channel::Camera(_) => {
-                    // The learned camera precision, and room for the GP's error.
                     let inflate = self.config.camera_inflation * self.config.camera_inflation;
-                    inflate / self.nominal[c] * (self.nominal[c] / w).max(1.0)
+                    match self.config.camera {
+                        // The learned camera precision, and room for the GP's error.
+                        CameraPrecision::Gradient => {
+                            inflate / self.nominal[c] * (self.nominal[c] / w).max(1.0)
+                        }
+                        CameraPrecision::Bank => {
+                            let cam0 = self.layout.group_range(crate::sensors::SensorGroup::Camera).start;
+                            let broad = if self.failed[j] == Some(cam0) {
+                                self.config.camera_broad * self.config.camera_broad
+                            } else {
+                                1.0
+                            };
+                            inflate / self.nominal[c] * broad
+                        }
+                    }
                 }
                 _ => {
                     let v = 1.0 / self.nominal[c];
@@ -208,8 +281,17 @@ impl Hybrid {
                 }
                 None => None,
             };
+            let noise: Option<Vec<f64>> = acc.as_ref().map(|a| {
+                a.iter()
+                    .map(|a| {
+                        self.config
+                            .model_acceleration_noise
+                            .max(self.config.model_relative_error * a.abs())
+                    })
+                    .collect()
+            });
             for f in &mut self.bank {
-                f.predict(acc.as_deref());
+                f.predict_with_noise(acc.as_deref(), noise.as_deref());
             }
             // The switching prior: stay with 1 - s, leave to each other hypothesis with s/(h-1).
             let s = self.config.switch;
@@ -225,17 +307,6 @@ impl Hybrid {
             let v = self.variances.clone();
             self.bank[j].linearise();
             ll[j] = self.bank[j].update(input.readings, &v);
-        }
-        if std::env::var_os("AIFT_DEBUG_HYBRID").is_some() {
-            let t = self.ticks;
-            if (7990..8300).contains(&t) && t % 5 == 0 {
-                let base = ll[0];
-                eprintln!(
-                    "t {t} dll {:?} p {:?}",
-                    ll.iter().map(|l| format!("{:.2}", l - base)).collect::<Vec<_>>(),
-                    self.probability.iter().map(|p| format!("{p:.2e}")).collect::<Vec<_>>()
-                );
-            }
         }
         self.ticks += 1;
         let best = ll.iter().copied().fold(f64::NEG_INFINITY, f64::max);
@@ -255,16 +326,23 @@ impl Estimator for Hybrid {
         self.step_bank(input);
         // Channel precisions: the bank's posterior expectation for encoders and tachometers,
         // the learned precision for the camera.
+        let cam0 = self.layout.group_range(crate::sensors::SensorGroup::Camera).start;
         for c in 0..self.layout.len() {
+            let key = match self.layout.channel(c) {
+                Channel::Camera(_) => cam0,
+                _ => c,
+            };
             self.precisions[c] = match self.layout.channel(c) {
-                Channel::Camera(_) => input.precisions[c],
+                Channel::Camera(_) if self.config.camera == CameraPrecision::Gradient => {
+                    input.precisions[c]
+                }
                 _ if input.precisions[c] <= 0.0 => 0.0,
                 _ => {
                     let failed: f64 = self
                         .failed
                         .iter()
                         .zip(&self.probability)
-                        .filter(|(f, _)| **f == Some(c))
+                        .filter(|(f, _)| **f == Some(key))
                         .map(|(_, p)| *p)
                         .sum();
                     self.nominal[c] * (1.0 - failed).max(self.floor)
@@ -275,13 +353,27 @@ impl Estimator for Hybrid {
         let winner = (0..self.bank.len())
             .max_by(|&a, &b| self.probability[a].total_cmp(&self.probability[b]))
             .unwrap_or(0);
+        let tick = self.ticks;
         if winner != self.winner {
-            if winner != 0 && self.config.reanchor && self.uaic.belief().len() == self.bank[winner].x.len() {
+            if winner != 0 && self.config.reanchor && self.outside(winner) {
                 let x: Vec<f64> = self.bank[winner].x.iter().copied().collect();
                 let p = self.bank[winner].p.clone();
                 self.uaic.reanchor(&x, Some(&p));
             }
             self.winner = winner;
+            self.winner_since = tick;
+        } else if winner != 0
+            && self.config.resync_ticks > 0
+            && tick > self.winner_since
+            && (tick - self.winner_since).is_multiple_of(self.config.resync_ticks)
+        {
+            let (x, p) = (self.bank[winner].x.clone(), self.bank[winner].p.clone());
+            for (j, f) in self.bank.iter_mut().enumerate() {
+                if j != winner {
+                    f.x.copy_from(&x);
+                    f.p.copy_from(&p);
+                }
+            }
         }
         let precisions = self.precisions.clone();
         self.uaic.step(input.readings, &precisions)

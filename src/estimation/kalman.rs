@@ -218,6 +218,12 @@ impl Ekf {
     /// Prediction over one tick: constant velocity, or with the model's acceleration `acc`
     /// (and its velocity damping `-dt M^-1 D` left out of the Jacobian: small at 1 ms).
     pub fn predict(&mut self, acc: Option<&[f64]>) {
+        self.predict_with_noise(acc, None);
+    }
+
+    /// As [`Self::predict`], with each joint's acceleration noise given (rad/s^2; absent: the
+    /// filter's own).
+    pub fn predict_with_noise(&mut self, acc: Option<&[f64]>, noise: Option<&[f64]>) {
         let n = self.n();
         let dt = self.dt;
         for i in 0..n {
@@ -237,8 +243,9 @@ impl Ekf {
                 q[(n + r, n + c)] = pvv;
             }
         }
-        let s2 = self.accel_noise * self.accel_noise;
         for i in 0..n {
+            let s = noise.map_or(self.accel_noise, |v| v[i]);
+            let s2 = s * s;
             q[(i, i)] += s2 * dt.powi(4) / 4.0;
             q[(i, n + i)] += s2 * dt.powi(3) / 2.0;
             q[(n + i, i)] += s2 * dt.powi(3) / 2.0;

@@ -178,10 +178,11 @@ fn markdown(
          (within {} rad in the worst seed), `FAIL (k/n)` failed (k of n seeds recovered; a \
          runaway: a joint at its limit or {} rad off), `DIV` diverged; the number is the \
          post-fault MSE of the faulty joints over the oracle's; `!` marks worse than no-FT (MSE \
-         over 1.5x no-FT's, or final error {} rad above it).\n",
+         over 1.5x no-FT's and {:.0e} rad^2 above it, or final error {} rad above it).\n",
         c.verdict.tolerance,
         c.verdict.degraded,
         c.verdict.runaway,
+        (c.verdict.tolerance / 20.0).powi(2),
         0.5 * c.verdict.tolerance
     );
     out += "## Summary per method\n\n";
