@@ -29,7 +29,7 @@ use std::sync::Arc;
 use nalgebra::DMatrix;
 use serde::{Deserialize, Serialize};
 
-use super::kalman::{ArmDynamics, Ekf};
+use super::kalman::{ArmDynamics, Ekf, linearise_bank};
 use super::uaic::Uaic;
 use super::{Estimate, Estimator, EstimatorInput};
 use crate::gp::GpModel;
@@ -120,7 +120,9 @@ impl HybridConfig {
         {
             return Err(("model_acceleration_noise", "must be in (0, 1e9]".into()));
         }
-        if !(self.model_relative_error.is_finite() && (0.0..=10.0).contains(&self.model_relative_error)) {
+        if !(self.model_relative_error.is_finite()
+            && (0.0..=10.0).contains(&self.model_relative_error))
+        {
             return Err(("model_relative_error", "must be in [0, 10]".into()));
         }
         if !(self.switch > 0.0 && self.switch < 0.5) {
@@ -129,7 +131,10 @@ impl HybridConfig {
         if !(self.broad.is_finite() && self.broad > 1.0 && self.broad <= 1e9) {
             return Err(("broad", "must be in (1, 1e9]".into()));
         }
-        if !(self.camera_inflation.is_finite() && self.camera_inflation >= 1.0 && self.camera_inflation <= 1e3) {
+        if !(self.camera_inflation.is_finite()
+            && self.camera_inflation >= 1.0
+            && self.camera_inflation <= 1e3)
+        {
             return Err(("camera_inflation", "must be in [1, 1e3]".into()));
         }
         if !(self.camera_broad.is_finite() && self.camera_broad > 1.0 && self.camera_broad <= 1e9) {
@@ -178,7 +183,11 @@ impl Hybrid {
             }
         }
         if config.camera == CameraPrecision::Bank {
-            failed.push(Some(layout.group_range(crate::sensors::SensorGroup::Camera).start));
+            failed.push(Some(
+                layout
+                    .group_range(crate::sensors::SensorGroup::Camera)
+                    .start,
+            ));
         }
         let h = failed.len();
         let mut probability = vec![1e-3 / (h - 1) as f64; h];
@@ -210,7 +219,8 @@ impl Hybrid {
         if b.len() != f.x.len() {
             return false;
         }
-        let d = nalgebra::DVector::from_iterator(b.len(), b.iter().zip(f.x.iter()).map(|(a, c)| a - c));
+        let d =
+            nalgebra::DVector::from_iterator(b.len(), b.iter().zip(f.x.iter()).map(|(a, c)| a - c));
         let mut s = f.p.clone();
         if let Some(c) = self.uaic.covariance() {
             s += c;
@@ -240,7 +250,10 @@ impl Hybrid {
                             inflate / self.nominal[c] * (self.nominal[c] / w).max(1.0)
                         }
                         CameraPrecision::Bank => {
-                            let cam0 = self.layout.group_range(crate::sensors::SensorGroup::Camera).start;
+                            let cam0 = self
+                                .layout
+                                .group_range(crate::sensors::SensorGroup::Camera)
+                                .start;
                             let broad = if self.failed[j] == Some(cam0) {
                                 self.config.camera_broad * self.config.camera_broad
                             } else {
@@ -302,11 +315,10 @@ impl Hybrid {
             }
         }
         let mut ll = vec![0.0; h];
+        linearise_bank(&mut self.bank);
         for j in 0..h {
             self.hypothesis_variances(j, input);
-            let v = self.variances.clone();
-            self.bank[j].linearise();
-            ll[j] = self.bank[j].update(input.readings, &v);
+            ll[j] = self.bank[j].update(input.readings, &self.variances);
         }
         self.ticks += 1;
         let best = ll.iter().copied().fold(f64::NEG_INFINITY, f64::max);
@@ -326,7 +338,10 @@ impl Estimator for Hybrid {
         self.step_bank(input);
         // Channel precisions: the bank's posterior expectation for encoders and tachometers,
         // the learned precision for the camera.
-        let cam0 = self.layout.group_range(crate::sensors::SensorGroup::Camera).start;
+        let cam0 = self
+            .layout
+            .group_range(crate::sensors::SensorGroup::Camera)
+            .start;
         for c in 0..self.layout.len() {
             let key = match self.layout.channel(c) {
                 Channel::Camera(_) => cam0,

@@ -9,7 +9,7 @@
 
 use nalgebra::{DMatrix, DVector};
 
-use super::kalman::{ArmDynamics, Ekf, KalmanConfig};
+use super::kalman::{ArmDynamics, Ekf, KalmanConfig, linearise_bank};
 use super::{Estimate, Estimator, EstimatorInput};
 
 /// The multiple-model estimator.
@@ -31,6 +31,10 @@ pub struct Imm {
     mu_p: Vec<f64>,
     report: Estimate,
     used: Vec<f64>,
+    /// The mixture as a filter, for the posterior residuals.
+    combined: Ekf,
+    scratch: Vec<f64>,
+    log_like: Vec<f64>,
 }
 
 impl Imm {
@@ -57,6 +61,9 @@ impl Imm {
         let mut report = Estimate::new(&template.layout());
         report.precisions_used = nominal.to_vec();
         Self {
+            combined: template.clone(),
+            scratch: vec![0.0; m],
+            log_like: vec![0.0; hypotheses],
             filters: vec![template; hypotheses],
             variances,
             probability,
@@ -89,8 +96,22 @@ impl Imm {
         }
         self.p.fill(0.0);
         for (f, w) in self.filters.iter().zip(&self.probability) {
-            let d = &f.x - &self.x;
-            self.p += (&f.p + &d * d.transpose()) * *w;
+            add_spread(&mut self.p, *w, &f.p, &f.x, &self.x);
+        }
+    }
+}
+
+/// Mixing weights below this are left out (their share of a mean or covariance is below
+/// rounding).
+const MIX_FLOOR: f64 = 1e-15;
+
+/// target += w (p + (x - mean)(x - mean)'), without temporaries.
+fn add_spread(target: &mut DMatrix<f64>, w: f64, p: &DMatrix<f64>, x: &DVector<f64>, mean: &DVector<f64>) {
+    let d = x.len();
+    for b in 0..d {
+        let db = x[b] - mean[b];
+        for a in 0..d {
+            target[(a, b)] += w * (p[(a, b)] + (x[a] - mean[a]) * db);
         }
     }
 }
@@ -115,36 +136,42 @@ impl Estimator for Imm {
             let pi = |i: usize, j: usize| if i == j { stay } else { leave };
             for j in 0..h {
                 let cj: f64 = (0..h).map(|i| pi(i, j) * self.probability[i]).sum();
+                // Weights below 1e-15 move the mixture by less than rounding: skipped.
                 self.mixed_x[j].fill(0.0);
                 for i in 0..h {
                     let w = pi(i, j) * self.probability[i] / cj;
-                    self.mixed_x[j].axpy(w, &self.filters[i].x, 1.0);
+                    if w >= MIX_FLOOR {
+                        self.mixed_x[j].axpy(w, &self.filters[i].x, 1.0);
+                    }
                 }
                 self.mixed_p[j].fill(0.0);
                 for i in 0..h {
                     let w = pi(i, j) * self.probability[i] / cj;
-                    let d = &self.filters[i].x - &self.mixed_x[j];
-                    self.mixed_p[j] += (&self.filters[i].p + &d * d.transpose()) * w;
+                    if w >= MIX_FLOOR {
+                        let f = &self.filters[i];
+                        add_spread(&mut self.mixed_p[j], w, &f.p, &f.x, &self.mixed_x[j]);
+                    }
                 }
             }
             for j in 0..h {
                 self.filters[j].x.copy_from(&self.mixed_x[j]);
                 self.filters[j].p.copy_from(&self.mixed_p[j]);
             }
-            let predicted: Vec<f64> = (0..h)
-                .map(|j| {
-                    (0..h)
-                        .map(|i| pi(i, j) * self.probability[i])
-                        .sum::<f64>()
-                })
-                .collect();
-            self.probability = predicted;
+            // With a symmetric switching matrix, sum_i pi_ij p_i = stay p_j + leave (1 - p_j).
+            let total: f64 = self.probability.iter().sum();
+            for p in &mut self.probability {
+                *p = stay * *p + leave * (total - *p);
+            }
             // One model acceleration per tick, at the combined belief.
             let acc = match &mut self.model {
                 Some(model) => {
                     let n = self.n;
                     model
-                        .acceleration(&self.x.as_slice()[..n], &self.x.as_slice()[n..], input.applied_torques)
+                        .acceleration(
+                            &self.x.as_slice()[..n],
+                            &self.x.as_slice()[n..],
+                            input.applied_torques,
+                        )
                         .map(<[f64]>::to_vec)
                 }
                 None => None,
@@ -153,15 +180,17 @@ impl Estimator for Imm {
                 f.predict(acc.as_deref());
             }
         }
-        let mut log_like = vec![0.0; h];
+        linearise_bank(&mut self.filters);
         for (j, f) in self.filters.iter_mut().enumerate() {
-            let vv: Vec<f64> = (0..m).map(|c| variance(&self.variances[j], c)).collect();
-            f.linearise();
-            if j == 0 {
-                f.record_innovations(input.readings, &vv);
+            for c in 0..m {
+                self.scratch[c] = variance(&self.variances[j], c);
             }
-            log_like[j] = f.update(input.readings, &vv);
+            if j == 0 {
+                f.record_innovations(input.readings, &self.scratch);
+            }
+            self.log_like[j] = f.update(input.readings, &self.scratch);
         }
+        let log_like = &self.log_like;
         let best = log_like.iter().copied().fold(f64::NEG_INFINITY, f64::max);
         let mut total = 0.0;
         for j in 0..h {
@@ -177,15 +206,16 @@ impl Estimator for Imm {
         }
         self.combine();
         // Report: innovations of H_0's prediction; residuals at the combined belief.
-        self.report.innovations.clone_from(&self.filters[0].innovation);
+        self.report
+            .innovations
+            .clone_from(&self.filters[0].innovation);
         self.report
             .innovation_variances
             .clone_from(&self.filters[0].innovation_variance);
-        let mut combined = self.filters[0].clone();
-        combined.x.copy_from(&self.x);
-        combined.p.copy_from(&self.p);
-        combined.linearise();
-        combined.report_posterior(input.readings, &mut self.report);
+        self.combined.x.copy_from(&self.x);
+        self.combined.p.copy_from(&self.p);
+        self.combined.linearise();
+        self.combined.report_posterior(input.readings, &mut self.report);
         for c in 0..m {
             self.used[c] = if off[c] {
                 0.0

@@ -259,7 +259,8 @@ impl Uaic {
         let q = &mut self.prior_cov;
         for r in 0..n {
             for c in 0..n {
-                let (pqq, pqv, pvq, pvv) = (s[(r, c)], s[(r, n + c)], s[(n + r, c)], s[(n + r, n + c)]);
+                let (pqq, pqv, pvq, pvv) =
+                    (s[(r, c)], s[(r, n + c)], s[(n + r, c)], s[(n + r, n + c)]);
                 q[(r, c)] = pqq + dt * (pqv + pvq) + dt * dt * pvv;
                 q[(r, n + c)] = pqv + dt * pvv;
                 q[(n + r, c)] = pvq + dt * pvv;
@@ -553,11 +554,9 @@ impl Uaic {
                     quad += ex[a] * self.prior_info[(a, b)] * ex[b];
                 }
             }
-            let log_det = self
-                .prior_info
-                .clone()
-                .cholesky()
-                .map_or(0.0, |c| 2.0 * c.l().diagonal().iter().map(|d| d.ln()).sum::<f64>());
+            let log_det = self.prior_info.clone().cholesky().map_or(0.0, |c| {
+                2.0 * c.l().diagonal().iter().map(|d| d.ln()).sum::<f64>()
+            });
             free_energy += 0.5 * (quad - log_det);
         } else {
             self.prior_residual(&self.x, &self.x_prev, &mut ex);

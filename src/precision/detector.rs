@@ -9,6 +9,12 @@
 //! normalised residual in the alarmed group (default), or every such channel of the group (the
 //! ECC paper's recovery).
 //!
+//! Or, with `test = "cusum"`, a two-sided CUSUM (Page 1954) per channel on the same normalised
+//! innovation z = (r - r_mean) / r_std: `S+ = max(0, S+ + z - k)`, `S- = max(0, S- - z - k)`,
+//! alarm when either exceeds h, isolating that channel. A step of size delta (in healthy
+//! standard deviations) is found after about h / (delta - k) ticks, so a slow drift that never
+//! crosses the Chebyshev bound in one tick still accumulates to an alarm.
+//!
 //! A run may raise many alarms: every group is tested every tick, and an isolated channel is
 //! re-admitted once its own normalised innovation has stayed within the one-dimensional bound
 //! `sqrt(1 / alpha)` for `rearm_ticks` ticks (0: never; the ECC paper latches). A missing
@@ -29,6 +35,16 @@ pub enum Isolation {
     Group,
 }
 
+/// The detector's test.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum DetectorTest {
+    /// The ECC paper's per-tick multivariate Chebyshev bound per sensor group.
+    Chebyshev,
+    /// A two-sided CUSUM per channel on the normalised innovation.
+    Cusum,
+}
+
 /// Largest number of alarms a run keeps (later ones are counted, not kept).
 pub const MAX_ALARMS: usize = 10_000;
 
@@ -47,6 +63,12 @@ pub struct DetectorConfig {
     /// Ticks an isolated channel's innovation must stay within sqrt(1 / alpha) of its healthy
     /// spread before it is re-admitted; 0 never re-admits (the ECC paper's latch).
     pub rearm_ticks: u64,
+    /// `chebyshev` (the ECC paper's) or `cusum`.
+    pub test: DetectorTest,
+    /// CUSUM drift allowance k (healthy standard deviations per tick).
+    pub cusum_drift: f64,
+    /// CUSUM alarm threshold h (healthy standard deviations).
+    pub cusum_threshold: f64,
 }
 
 impl Default for DetectorConfig {
@@ -57,6 +79,9 @@ impl Default for DetectorConfig {
             pool_ticks: 5,
             calibration_runs: 50,
             rearm_ticks: 1000,
+            test: DetectorTest::Chebyshev,
+            cusum_drift: 1.0,
+            cusum_threshold: 200.0,
         }
     }
 }
@@ -80,6 +105,15 @@ impl DetectorConfig {
         }
         if self.rearm_ticks > 1_000_000_000 {
             return Err(("rearm_ticks", "must be <= 1e9".into()));
+        }
+        if !(self.cusum_drift.is_finite() && self.cusum_drift >= 0.0 && self.cusum_drift <= 1e3) {
+            return Err(("cusum_drift", "must be in [0, 1e3]".into()));
+        }
+        if !(self.cusum_threshold.is_finite()
+            && self.cusum_threshold > 0.0
+            && self.cusum_threshold <= 1e9)
+        {
+            return Err(("cusum_threshold", "must be in (0, 1e9]".into()));
         }
         Ok(())
     }
@@ -392,6 +426,11 @@ pub struct Detector {
     alpha: f64,
     isolation: Isolation,
     rearm_ticks: u64,
+    test: DetectorTest,
+    cusum_drift: f64,
+    cusum_threshold: f64,
+    /// Per channel: the CUSUM sums (S+, S-).
+    cusum: Vec<(f64, f64)>,
     state: Detection,
     /// Per channel: consecutive quiet ticks while isolated.
     quiet: Vec<u64>,
@@ -445,6 +484,10 @@ impl Detector {
             alpha: config.alpha,
             isolation: config.isolation,
             rearm_ticks: config.rearm_ticks,
+            test: config.test,
+            cusum_drift: config.cusum_drift,
+            cusum_threshold: config.cusum_threshold,
+            cusum: vec![(0.0, 0.0); layout.len()],
             state: Detection {
                 normalised_distance: vec![None; layout.groups().len()],
                 ..Detection::default()
@@ -495,6 +538,7 @@ impl Detector {
                 if self.rearm_ticks > 0 && self.quiet[c] >= self.rearm_ticks {
                     self.isolated_by[c] = None;
                     self.quiet[c] = 0;
+                    self.cusum[c] = (0.0, 0.0);
                     readmitted = true;
                     let still = self.isolated_by.contains(&Some(alarm));
                     if !still && let Some(a) = self.state.alarms.get_mut(alarm) {
@@ -512,6 +556,36 @@ impl Detector {
                 .filter(|&j| self.isolated_by[test.channels[j]].is_none())
                 .collect();
             if active.is_empty() {
+                continue;
+            }
+            if self.test == DetectorTest::Cusum {
+                let (k, h) = (self.cusum_drift, self.cusum_threshold);
+                let mut worst: Option<(usize, f64)> = None;
+                let mut largest = 0.0f64;
+                for &j in &active {
+                    let c = test.channels[j];
+                    let z = self.scratch[j] / test.std[t * dim + j];
+                    let (up, down) = &mut self.cusum[c];
+                    *up = (*up + z - k).max(0.0);
+                    *down = (*down - z - k).max(0.0);
+                    let s = up.max(*down);
+                    largest = largest.max(s);
+                    if s > h && worst.is_none_or(|(_, w)| s > w) {
+                        worst = Some((j, s));
+                    }
+                }
+                self.state.normalised_distance[gi] = Some(largest / h);
+                if let Some((j, _)) = worst {
+                    let channels: Vec<usize> = match self.isolation {
+                        Isolation::Group => active.iter().map(|&j| test.channels[j]).collect(),
+                        Isolation::Channel => vec![test.channels[j]],
+                    };
+                    for &c in &channels {
+                        self.cusum[c] = (0.0, 0.0);
+                    }
+                    let group = test.group;
+                    self.raise(tick, group, channels);
+                }
                 continue;
             }
             let d2 = if active.len() == dim {
@@ -586,13 +660,17 @@ mod tests {
 
     /// One-joint healthy runs: independent N(0, 1) innovations, 200 runs x 100 ticks.
     fn calibration() -> Calibration {
+        calibration_of(200, 100)
+    }
+
+    fn calibration_of(n_runs: usize, ticks: usize) -> Calibration {
         use rand::SeedableRng;
         use rand_distr::{Distribution, StandardNormal};
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
         let layout = layout();
-        let runs: Vec<Vec<Vec<Option<f64>>>> = (0..200)
+        let runs: Vec<Vec<Vec<Option<f64>>>> = (0..n_runs)
             .map(|_| {
-                (0..100)
+                (0..ticks)
                     .map(|_| {
                         (0..layout.len())
                             .map(|_| Some(StandardNormal.sample(&mut rng)))
@@ -690,5 +768,76 @@ mod tests {
         det.check(6, &[Some(0.0), Some(0.0), Some(40.0), Some(0.0)]);
         let d = det.check(7, &[Some(0.0), Some(0.0), None, None]);
         assert_eq!(d.isolated, vec![2, 3], "group isolation, still isolated");
+    }
+
+    /// A ramp of 0.01 sigma per tick on the encoder: the per-tick Chebyshev bound (10 sigma at
+    /// alpha = 0.01) is crossed only near tick 1000; the CUSUM (k = 1, h = 200) from tick 100 on
+    /// sums 0.01 (t - 100) - ... and crosses h at t = 100 + sqrt(2 h / 0.01) = 300.
+    #[test]
+    fn cusum_finds_a_slow_ramp_long_before_the_chebyshev_bound_and_isolates_it() {
+        let cal = calibration_of(40, 1500);
+        let first = |test: DetectorTest| {
+            let config = DetectorConfig {
+                test,
+                ..latched()
+            };
+            let mut det = Detector::new(&cal, &config, &layout());
+            for t in 0..1500u64 {
+                let z = 0.01 * t as f64;
+                let d = det.check(t, &[Some(z), Some(0.0), Some(0.0), Some(0.0)]);
+                if let Some(a) = d.first() {
+                    return Some((a.tick, a.channels.clone()));
+                }
+            }
+            None
+        };
+        let (cheb, cheb_channels) = first(DetectorTest::Chebyshev).expect("chebyshev fires");
+        let (cusum, cusum_channels) = first(DetectorTest::Cusum).expect("cusum fires");
+        assert_eq!(cheb_channels, vec![0]);
+        assert_eq!(cusum_channels, vec![0]);
+        // The calibrated spread is near 1 (not exactly), so the crossings are near, not at,
+        // their nominal ticks.
+        assert!((850..1200).contains(&cheb), "chebyshev at {cheb}");
+        assert!((250..350).contains(&cusum), "cusum at {cusum}");
+    }
+
+    /// Healthy N(0, 1) innovations: 20 000 ticks x 4 channels raise no CUSUM alarm (with k = 1
+    /// each tick's expected increment is below -1, so the sums stay near 0).
+    #[test]
+    fn cusum_is_quiet_on_healthy_innovations() {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, StandardNormal};
+        let cal = calibration();
+        let config = DetectorConfig {
+            test: DetectorTest::Cusum,
+            ..latched()
+        };
+        let mut det = Detector::new(&cal, &config, &layout());
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let mut largest = 0.0f64;
+        for rep in 0..200 {
+            for t in 0..100u64 {
+                let r: Vec<Option<f64>> =
+                    (0..4).map(|_| Some(StandardNormal.sample(&mut rng))).collect();
+                let d = det.check(t, &r);
+                assert!(!d.fired(), "rep {rep} tick {t}");
+                largest = largest.max(d.normalised_distance[0].unwrap_or(0.0));
+            }
+        }
+        assert!(largest < 0.1, "largest S / h {largest}");
+    }
+
+    #[test]
+    fn cusum_settings_are_validated() {
+        let bad = DetectorConfig {
+            cusum_threshold: 0.0,
+            ..DetectorConfig::default()
+        };
+        assert_eq!(bad.validate().unwrap_err().0, "cusum_threshold");
+        let bad = DetectorConfig {
+            cusum_drift: f64::NAN,
+            ..DetectorConfig::default()
+        };
+        assert_eq!(bad.validate().unwrap_err().0, "cusum_drift");
     }
 }

@@ -22,7 +22,8 @@ use nalgebra::DMatrix;
 use serde::{Deserialize, Serialize};
 
 pub use detector::{
-    Alarm, Calibration, CalibrationAccumulator, Detection, Detector, DetectorConfig, Isolation,
+    Alarm, Calibration, CalibrationAccumulator, Detection, Detector, DetectorConfig, DetectorTest,
+    Isolation,
 };
 pub use learners::{Bayes, Fixed, Gradient, Window};
 pub use supervised::{Deterministic, GatedLearning, Oracle, PerGroup};

@@ -177,7 +177,7 @@ pub fn table_markdown(setup: &RunSetup, table: &Table) -> String {
         );
     }
     out += "\nDetection delay: the detector's alarm for pl-detect and deterministic; for the other methods \
-            the first time a channel's health fell below 0.1. The oracle zeroes the faulty channel's \
+            the first time a channel's health fell below 0.1 and stayed there 20 ms. The oracle zeroes the faulty channel's \
             precision at the fault time; it is the reference, not a usable method.\n";
     if table.rows.iter().any(|r| r.method == Method::Oracle) {
         out += "`x oracle`: the method's faulty-joint MSE over the oracle's (all-joint MSE when no joint has a faulty sensor).\n";

@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 use super::{Method, ScenarioError};
 use crate::control::{ControlConfig, PidGains};
 use crate::estimation::uaic::{Prediction, UaicConfig, UpdateScheme};
-use crate::precision::{DetectorConfig, Isolation, PrecisionBounds};
+use crate::precision::{DetectorConfig, DetectorTest, Isolation, PrecisionBounds};
 use crate::sensors::{CameraConfig, ChannelLayout, FaultSpec, SensorConfig};
 
 /// A scenario: the arm, its start and targets, sensors, camera, GP, controller, precision
@@ -361,6 +361,12 @@ pub struct DetectorSettings {
     pub calibration_runs: usize,
     /// Quiet ticks before an isolated channel is re-admitted (0: never).
     pub rearm_ticks: u64,
+    /// `chebyshev` (per-tick bound, the ECC paper's) or `cusum` (accumulates slow faults).
+    pub test: DetectorTest,
+    /// CUSUM drift allowance k (healthy standard deviations per tick).
+    pub cusum_drift: f64,
+    /// CUSUM alarm threshold h (healthy standard deviations).
+    pub cusum_threshold: f64,
     /// A calibration file (relative to the scenario file); default: calibrate on the fly.
     pub calibration: Option<PathBuf>,
 }
@@ -374,6 +380,9 @@ impl Default for DetectorSettings {
             pool_ticks: d.pool_ticks,
             calibration_runs: d.calibration_runs,
             rearm_ticks: d.rearm_ticks,
+            test: d.test,
+            cusum_drift: d.cusum_drift,
+            cusum_threshold: d.cusum_threshold,
             calibration: None,
         }
     }
@@ -388,6 +397,9 @@ impl DetectorSettings {
             pool_ticks: self.pool_ticks,
             calibration_runs: self.calibration_runs,
             rearm_ticks: self.rearm_ticks,
+            test: self.test,
+            cusum_drift: self.cusum_drift,
+            cusum_threshold: self.cusum_threshold,
         }
     }
 }

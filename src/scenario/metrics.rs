@@ -16,6 +16,10 @@ use crate::sensors::{ChannelLayout, Fault};
 
 /// Health below which a channel counts as detected faulty (methods without a detector).
 pub const DETECTION_HEALTH: f64 = 0.1;
+/// How long health must stay below [`DETECTION_HEALTH`] to count (s): a gate that rejects one
+/// reading is not an alarm; an exclusion of 20 ms (20 ticks at 1 kHz) is. The detection's time is
+/// the first tick below.
+pub const DETECTION_DWELL: f64 = 0.02;
 /// Health above which such a channel counts as recovered and may be detected again.
 pub const RECOVERY_HEALTH: f64 = 0.5;
 /// Longest list of detections a run keeps.
@@ -147,6 +151,8 @@ pub struct RunMetrics {
     /// Health-based detections (methods without a detector), with each channel's arming.
     health_events: Vec<(u64, usize)>,
     armed: Vec<bool>,
+    below_since: Vec<Option<u64>>,
+    dwell: u64,
     ticks_run: u64,
 }
 
@@ -211,6 +217,8 @@ impl RunMetrics {
             health: nominal.iter().map(|_| 1.0).collect(),
             health_events: Vec::new(),
             armed: vec![true; layout.len()],
+            below_since: vec![None; layout.len()],
+            dwell: ((DETECTION_DWELL / dt).round() as u64).max(1),
             ticks_run: 0,
         }
     }
@@ -386,13 +394,21 @@ impl Observer for RunMetrics {
         for (c, (w, nom)) in r.precisions.iter().zip(r.nominal).enumerate() {
             let h = precision::health(*w, *nom);
             self.health[c] = h;
-            if self.armed[c] && h < DETECTION_HEALTH {
-                self.armed[c] = false;
-                if self.health_events.len() < MAX_DETECTIONS {
-                    self.health_events.push((k, c));
+            if self.armed[c] {
+                if h < DETECTION_HEALTH {
+                    let since = *self.below_since[c].get_or_insert(k);
+                    if k + 1 - since >= self.dwell {
+                        self.armed[c] = false;
+                        if self.health_events.len() < MAX_DETECTIONS {
+                            self.health_events.push((since, c));
+                        }
+                    }
+                } else {
+                    self.below_since[c] = None;
                 }
-            } else if !self.armed[c] && h > RECOVERY_HEALTH {
+            } else if h > RECOVERY_HEALTH {
                 self.armed[c] = true;
+                self.below_since[c] = None;
             }
             if k >= self.last_5s_from {
                 self.min_health_last[c] = self.min_health_last[c].min(h);

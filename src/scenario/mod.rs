@@ -472,6 +472,9 @@ pub fn fingerprint(setup: &RunSetup) -> String {
     s.detector.alpha = defaults.alpha;
     s.detector.isolation = defaults.isolation;
     s.detector.rearm_ticks = defaults.rearm_ticks;
+    s.detector.test = defaults.test;
+    s.detector.cusum_drift = defaults.cusum_drift;
+    s.detector.cusum_threshold = defaults.cusum_threshold;
     s.name = String::new();
     s.description = String::new();
     // Where files live does not change a run; what they hold is hashed below.
