@@ -5,7 +5,10 @@
 //! mixed with a Markov switching matrix (stay with probability 1 - p, leave to each other with
 //! p / (M - 1)), predicted, updated, and weighed by their innovation likelihoods; the belief is the
 //! probability-weighted mixture (docs/method.md, "Classical baselines"). A channel's reported
-//! precision is its nominal precision times the probability that it is not the failed one.
+//! precision is its nominal precision times the probability that it is not the failed one. A
+//! manoeuvre hypothesis (every sensor nominal, `imm_manoeuvre` times the acceleration noise, the
+//! classical IMM's second motion model) takes the common-mode residual of a hard acceleration the
+//! constant-velocity model misses, so that it is not read as one sensor failing.
 
 use nalgebra::{DMatrix, DVector};
 
@@ -46,7 +49,8 @@ impl Imm {
         nominal: &[f64],
     ) -> Self {
         let m = nominal.len();
-        let hypotheses = m + 1;
+        let manoeuvre = config.imm_manoeuvre > 0.0;
+        let hypotheses = m + 1 + usize::from(manoeuvre);
         let base: Vec<f64> = nominal.iter().map(|w| 1.0 / w).collect();
         let mut variances = vec![base.clone()];
         for c in 0..m {
@@ -54,7 +58,13 @@ impl Imm {
             v[c] *= config.imm_broad * config.imm_broad;
             variances.push(v);
         }
-        let mut probability = vec![(1e-3) / m as f64; hypotheses];
+        let mut filters = vec![template.clone(); hypotheses];
+        if manoeuvre {
+            variances.push(base.clone());
+            let s = template.acceleration_noise() * config.imm_manoeuvre;
+            filters[m + 1].set_acceleration_noise(s);
+        }
+        let mut probability = vec![(1e-3) / (hypotheses - 1) as f64; hypotheses];
         probability[0] = 1.0 - 1e-3;
         let d = template.x.len();
         let n = d / 2;
@@ -64,7 +74,7 @@ impl Imm {
             combined: template.clone(),
             scratch: vec![0.0; m],
             log_like: vec![0.0; hypotheses],
-            filters: vec![template; hypotheses],
+            filters,
             variances,
             probability,
             switch: config.imm_switch,
@@ -106,7 +116,13 @@ impl Imm {
 const MIX_FLOOR: f64 = 1e-15;
 
 /// target += w (p + (x - mean)(x - mean)'), without temporaries.
-fn add_spread(target: &mut DMatrix<f64>, w: f64, p: &DMatrix<f64>, x: &DVector<f64>, mean: &DVector<f64>) {
+fn add_spread(
+    target: &mut DMatrix<f64>,
+    w: f64,
+    p: &DMatrix<f64>,
+    x: &DVector<f64>,
+    mean: &DVector<f64>,
+) {
     let d = x.len();
     for b in 0..d {
         let db = x[b] - mean[b];
@@ -215,7 +231,8 @@ impl Estimator for Imm {
         self.combined.x.copy_from(&self.x);
         self.combined.p.copy_from(&self.p);
         self.combined.linearise();
-        self.combined.report_posterior(input.readings, &mut self.report);
+        self.combined
+            .report_posterior(input.readings, &mut self.report);
         for c in 0..m {
             self.used[c] = if off[c] {
                 0.0

@@ -44,6 +44,15 @@ pub struct KalmanConfig {
     pub imm_switch: f64,
     /// A hypothesis' faulty channel: noise standard deviation this many times the nominal.
     pub imm_broad: f64,
+    /// The manoeuvre hypothesis of `imm` (every sensor nominal, the acceleration noise this many
+    /// times the model's: a hard acceleration the constant-velocity model misses is a manoeuvre,
+    /// not a failed sensor); 0 leaves it out.
+    pub imm_manoeuvre: f64,
+    /// `ekf-gate`: when this many channels or more fall beyond the gate within `exclude_after`
+    /// ticks, the residual is common-mode (the model, not a sensor, is off, as in a hard
+    /// acceleration): nothing is gated that tick and the covariance is inflated by the largest
+    /// normalised innovation squared of the channels in use (a fading factor); 0: never.
+    pub common_mode: usize,
 }
 
 impl Default for KalmanConfig {
@@ -57,6 +66,8 @@ impl Default for KalmanConfig {
             vb_rho: 0.999,
             imm_switch: 1e-4,
             imm_broad: 1000.0,
+            imm_manoeuvre: 10.0,
+            common_mode: 2,
         }
     }
 }
@@ -91,6 +102,16 @@ impl KalmanConfig {
         }
         if !(self.imm_broad.is_finite() && self.imm_broad > 1.0 && self.imm_broad <= 1e9) {
             return Err(("imm_broad", "must be in (1, 1e9]".into()));
+        }
+        if !(self.imm_manoeuvre == 0.0
+            || (self.imm_manoeuvre.is_finite()
+                && self.imm_manoeuvre > 1.0
+                && self.imm_manoeuvre <= 1e6))
+        {
+            return Err(("imm_manoeuvre", "must be 0 or in (1, 1e6]".into()));
+        }
+        if self.common_mode > 1_000_000 {
+            return Err(("common_mode", "must be <= 1000000".into()));
         }
         Ok(())
     }
@@ -186,6 +207,16 @@ impl Ekf {
 
     pub fn n(&self) -> usize {
         self.layout.n_joints()
+    }
+
+    /// The acceleration noise s_a (rad/s^2) of the prediction.
+    pub fn acceleration_noise(&self) -> f64 {
+        self.accel_noise
+    }
+
+    /// Sets the acceleration noise s_a (rad/s^2) of the prediction.
+    pub fn set_acceleration_noise(&mut self, s: f64) {
+        self.accel_noise = s;
     }
 
     pub fn layout(&self) -> ChannelLayout {
@@ -403,9 +434,9 @@ pub fn linearise_bank(bank: &mut [Ekf]) {
         let (done, rest) = bank.split_at_mut(j);
         let f = &mut rest[0];
         let n = f.n();
-        let near = done.iter().find(|d| {
-            (0..n).all(|i| (d.x_pred[i] - f.x[i]).abs() <= SHARED_LINEARISATION)
-        });
+        let near = done
+            .iter()
+            .find(|d| (0..n).all(|i| (d.x_pred[i] - f.x[i]).abs() <= SHARED_LINEARISATION));
         match near {
             Some(d) => {
                 f.g.copy_from_slice(&d.g);
@@ -436,6 +467,8 @@ pub struct EkfGate {
     beyond: Vec<u64>,
     within: Vec<u64>,
     excluded: Vec<bool>,
+    nis: Vec<Option<f64>>,
+    last_beyond: Vec<Option<u64>>,
     n: usize,
     mu: Vec<f64>,
     mu_p: Vec<f64>,
@@ -456,6 +489,8 @@ impl EkfGate {
             beyond: vec![0; m],
             within: vec![0; m],
             excluded: vec![false; m],
+            nis: vec![None; m],
+            last_beyond: vec![None; m],
             n,
             mu: vec![0.0; n],
             mu_p: vec![0.0; n],
@@ -491,14 +526,57 @@ impl Estimator for EkfGate {
         }
         self.ekf.linearise();
         self.ekf.record_innovations(input.readings, &self.variances);
+        // Normalised innovations squared; the common-mode test over the channels in use.
+        let tick = input.tick;
+        let mut nis_max = 0.0f64;
         for c in 0..m {
-            let nis = match (self.ekf.innovation[c], self.ekf.innovation_variance[c]) {
-                (Some(nu), Some(s)) if s > 0.0 && self.variances[c].is_finite() => nu * nu / s,
-                _ => {
-                    self.used[c] = 0.0;
-                    continue;
+            self.nis[c] = match (self.ekf.innovation[c], self.ekf.innovation_variance[c]) {
+                (Some(nu), Some(s)) if s > 0.0 && self.variances[c].is_finite() => {
+                    let v = nu * nu / s;
+                    if !self.excluded[c] {
+                        if v > self.config.gate {
+                            self.last_beyond[c] = Some(tick);
+                        }
+                        nis_max = nis_max.max(v);
+                    }
+                    Some(v)
                 }
+                _ => None,
             };
+        }
+        // Channels beyond the gate within the last `exclude_after` ticks (one of them now).
+        let window = self.config.exclude_after.max(1);
+        let recent = (0..m)
+            .filter(|&c| {
+                !self.excluded[c] && self.last_beyond[c].is_some_and(|k| k + window > tick)
+            })
+            .count();
+        let now = (0..m).any(|c| self.last_beyond[c] == Some(tick));
+        let common = self.config.common_mode > 0 && now && recent >= self.config.common_mode;
+        if common {
+            self.last_beyond.fill(None);
+        }
+        if common {
+            // The fading factor: the covariance grows until the worst channel in use is one
+            // standard deviation off; no channel is judged, so none moves towards exclusion.
+            let fading = nis_max.max(1.0);
+            self.ekf.p *= fading;
+            self.beyond.fill(0);
+            self.ekf.record_innovations(input.readings, &self.variances);
+        }
+        for c in 0..m {
+            let Some(nis) = self.nis[c] else {
+                self.used[c] = 0.0;
+                continue;
+            };
+            if common {
+                self.used[c] = if self.excluded[c] {
+                    0.0
+                } else {
+                    input.precisions[c]
+                };
+                continue;
+            }
             if nis > self.config.gate {
                 self.beyond[c] += 1;
                 self.within[c] = 0;
@@ -774,7 +852,7 @@ mod tests {
             let mut q = [0.1 * unit.sample(&mut rng), 0.1 * unit.sample(&mut rng)];
             let mut v = [0.0, 0.0];
             let mut ekf = Ekf::new(layout, gp.clone(), dt, s_a);
-                let mut readings = Readings::missing(&layout);
+            let mut readings = Readings::missing(&layout);
             for k in 0..to {
                 if k > 0 {
                     for i in 0..2 {
@@ -835,6 +913,52 @@ mod tests {
         for (r, v) in nis.iter().enumerate() {
             let mean = v / count;
             assert!((mean - 1.0).abs() < 0.05, "camera {r}: mean NIS {mean}");
+        }
+    }
+
+    /// The VB-AKF's noise learner at its fixed point: a static arm (nearly no process noise),
+    /// encoder 1 with 3x its nominal noise standard deviation, the others nominal. The learned
+    /// variance of encoder 1 settles at 9x nominal (precision 1/9), the others stay nominal.
+    #[test]
+    fn vb_akf_learns_a_channels_true_noise_variance() {
+        let layout = ChannelLayout::new(2, CameraModel::Pinhole);
+        let gp = toy_gp();
+        let nominal_var: [f64; 6] = [1e-6, 1e-6, 1e-6, 1e-6, 1e-4, 1e-4];
+        let mut true_var = nominal_var;
+        true_var[0] *= 9.0;
+        let nominal: Vec<f64> = nominal_var.iter().map(|v| 1.0 / v).collect();
+        let ekf = Ekf::new(layout, gp.clone(), 1e-3, 1e-3);
+        let mut vb = VbAkf::new(ekf, &KalmanConfig::default(), None, &nominal, 1e-6);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+        let unit = Normal::new(0.0, 1.0).unwrap();
+        let q = [0.2, -0.3];
+        let mut g = vec![0.0; 2];
+        let mut jac = vec![0.0; 4];
+        gp.predict(&q, &mut g, &mut jac);
+        let truth = [q[0], q[1], 0.0, 0.0, g[0], g[1]];
+        let mut readings = Readings::missing(&layout);
+        let zeros = [0.0, 0.0];
+        let mut mean = [0.0; 6];
+        let (ticks, from) = (20_000u64, 10_000u64);
+        for k in 0..ticks {
+            for c in 0..6 {
+                readings.values[c] = Some(truth[c] + true_var[c].sqrt() * unit.sample(&mut rng));
+            }
+            let est = vb.update(&EstimatorInput {
+                tick: k,
+                readings: &readings,
+                precisions: &nominal,
+                applied_torques: &zeros,
+            });
+            if k >= from {
+                for c in 0..6 {
+                    mean[c] += est.precisions_used[c] / nominal[c] / (ticks - from) as f64;
+                }
+            }
+        }
+        assert!((mean[0] - 1.0 / 9.0).abs() < 0.15 / 9.0, "enc1 {}", mean[0]);
+        for (c, m) in mean.iter().enumerate().skip(1) {
+            assert!(*m > 0.9, "channel {c}: {m}");
         }
     }
 }

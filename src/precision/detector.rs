@@ -777,10 +777,7 @@ mod tests {
     fn cusum_finds_a_slow_ramp_long_before_the_chebyshev_bound_and_isolates_it() {
         let cal = calibration_of(40, 1500);
         let first = |test: DetectorTest| {
-            let config = DetectorConfig {
-                test,
-                ..latched()
-            };
+            let config = DetectorConfig { test, ..latched() };
             let mut det = Detector::new(&cal, &config, &layout());
             for t in 0..1500u64 {
                 let z = 0.01 * t as f64;
@@ -817,8 +814,9 @@ mod tests {
         let mut largest = 0.0f64;
         for rep in 0..200 {
             for t in 0..100u64 {
-                let r: Vec<Option<f64>> =
-                    (0..4).map(|_| Some(StandardNormal.sample(&mut rng))).collect();
+                let r: Vec<Option<f64>> = (0..4)
+                    .map(|_| Some(StandardNormal.sample(&mut rng)))
+                    .collect();
                 let d = det.check(t, &r);
                 assert!(!d.fired(), "rep {rep} tick {t}");
                 largest = largest.max(d.normalised_distance[0].unwrap_or(0.0));
