@@ -13,6 +13,11 @@ use aift::scenario::{Method, RunResult, RunSetup};
 /// Campaign tolerance (rad): recovered when every joint ends within it.
 const TOLERANCE: f64 = 0.02;
 
+/// `v < limit`, false for NaN.
+fn below(v: f64, limit: f64) -> bool {
+    v < limit
+}
+
 fn runs(setup: &RunSetup, methods: &[Method], seeds: &[u64]) -> Vec<RunResult> {
     let needs_detector = methods
         .iter()
@@ -23,7 +28,7 @@ fn runs(setup: &RunSetup, methods: &[Method], seeds: &[u64]) -> Vec<RunResult> {
         .runs
 }
 
-fn of<'a>(runs: &'a [RunResult], method: Method) -> impl Iterator<Item = &'a RunResult> {
+fn of(runs: &[RunResult], method: Method) -> impl Iterator<Item = &RunResult> {
     runs.iter().filter(move |r| r.method == method.name())
 }
 
@@ -60,13 +65,13 @@ fn hybrid_and_imm_recover_encoder_and_tachometer_freezes_on_the_damped_and_undam
                     no_ft,
                     r.isolated_channel
                 );
-                if !(r.max_final_error < TOLERANCE) || r.outcome.name() != "completed" {
+                if !below(r.max_final_error, TOLERANCE) || r.outcome.name() != "completed" {
                     failures.push(format!(
                         "{file} {} seed {}: not recovered",
                         r.method, r.seed
                     ));
                 }
-                if !(r.mse_faulty.unwrap() < no_ft / 100.0) {
+                if !below(r.mse_faulty.unwrap(), no_ft / 100.0) {
                     failures.push(format!(
                         "{file} {} seed {}: MSE near no-ft",
                         r.method, r.seed
@@ -76,7 +81,7 @@ fn hybrid_and_imm_recover_encoder_and_tachometer_freezes_on_the_damped_and_undam
         }
         // The hybrid also isolates the right channel and stays within 10x the oracle.
         for r in of(&rs, Method::Hybrid) {
-            if r.isolation_correct != Some(true) || !(r.mse_faulty.unwrap() < 10.0 * oracle) {
+            if r.isolation_correct != Some(true) || !below(r.mse_faulty.unwrap(), 10.0 * oracle) {
                 failures.push(format!("{file} hybrid seed {}: isolation or MSE", r.seed));
             }
         }
@@ -101,7 +106,7 @@ fn the_hybrid_holds_with_the_arm_models_masses_twenty_percent_off() {
                     r.max_final_error, r.isolated_channel, r.false_alarms
                 );
                 let healthy = file.contains("healthy");
-                if !(r.max_final_error < TOLERANCE)
+                if !below(r.max_final_error, TOLERANCE)
                     || r.false_alarms > 0
                     || (!healthy && r.isolation_correct != Some(true))
                     || (healthy && r.isolated_channel.is_some())
@@ -146,7 +151,7 @@ fn no_method_is_worse_than_no_ft_on_healthy_runs_or_raises_a_false_alarm() {
                 let worse = (mse(r) > 1.5 * mse(base)
                     && mse(r) > mse(base) + (TOLERANCE / 20.0).powi(2))
                     || r.max_final_error > base.max_final_error + TOLERANCE / 2.0;
-                if worse || r.false_alarms > 0 || !(r.max_final_error < TOLERANCE) {
+                if worse || r.false_alarms > 0 || !below(r.max_final_error, TOLERANCE) {
                     failures.push(format!("{file} {} seed {seed}", r.method));
                 }
             }
