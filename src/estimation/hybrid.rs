@@ -6,23 +6,25 @@
 //! posterior covariance), so that when a channel loses its weight the prior loosens and the
 //! remaining sensors re-anchor the belief at once instead of over P_mu / P_cam ticks.
 //!
-//! The precisions are beliefs too, at two levels. Each encoder's and tachometer's precision is a
-//! discrete latent state, healthy (nominal) or failed (nominal / broad^2), inferred by Bayesian
-//! model comparison: a bank of hypotheses H_0 (all healthy) and H_c (channel c failed), each a
-//! Kalman filter on the same generative model, scored every tick by its log evidence (the
-//! innovation log-likelihood, -F of its Laplace model), with a Markov switching prior between
-//! hypotheses; the channel's precision is the posterior expectation nominal x P(not H_c). The
-//! camera's precisions are learned continuously by the seed paper's gradient rule (the camera has
-//! no hypothesis: its faults are biases and freezes the gradient rule handles, and a broad-camera
-//! hypothesis pays a ln(broad) penalty every tick that makes the bank blame encoders instead); the
-//! learned camera precision is fed back into every hypothesis' camera noise.
+//! The precisions are beliefs too. Each sensor's precision is a discrete latent state, healthy
+//! (nominal) or failed (nominal / broad^2), inferred by Bayesian model comparison: a bank of
+//! hypotheses H_0 (all healthy), H_c (encoder or tachometer c failed) and H_cam (every camera
+//! output failed together, `camera_broad` times its noise), each a Kalman filter on the same
+//! generative model, scored every tick by its log evidence (the innovation log-likelihood, -F
+//! of its Laplace model), with a Markov switching prior between hypotheses; a channel's
+//! precision is the posterior expectation nominal x P(not H_c). (`hybrid.camera = "gradient"`
+//! learns the camera's precision by the seed paper's gradient rule instead and feeds it back
+//! into the bank.)
 //!
-//! The bank's transition is the constant-velocity model, or (`hybrid.bank_model = "dynamics"`) the
-//! arm's own dynamics driven by the applied torques, which separates a frozen encoder from a
-//! frozen tachometer on arms without heavy damping (its masses can be scaled to test model error).
-//! When a failure hypothesis becomes the most probable, the belief is re-anchored on that
-//! hypothesis' estimate (which never trusted the failed channel), and every other hypothesis
-//! restarts from it.
+//! The bank's transition is the arm's own dynamics driven by the applied torques (default), or
+//! the constant-velocity model (`hybrid.bank_model = "constant-velocity"`); the dynamics separate
+//! a frozen encoder from a frozen tachometer on arms without heavy damping. Its process noise per
+//! joint is max(`model_acceleration_noise`, `model_relative_error` x |predicted acceleration|), so
+//! a hard acceleration the model gets slightly wrong is not read as every sensor failing, and the
+//! masses can be scaled (`mass_scale`) to test model error. When a failure hypothesis becomes the
+//! most probable and the belief lies outside its 3-sigma ellipsoid, the belief is re-anchored on
+//! that hypothesis' estimate (which never trusted the failed channel); while it keeps winning, the
+//! other hypotheses restart from it every `resync_ticks`, so that a fault that ends is seen to end.
 
 use std::sync::Arc;
 

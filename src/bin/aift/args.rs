@@ -132,7 +132,7 @@ pub struct TableArgs {
     /// Number of seeds (the scenario's seed and the ones after it).
     #[arg(long, default_value_t = 20)]
     pub seeds: usize,
-    /// Methods, comma-separated (default: all seven).
+    /// Methods, comma-separated (default: every method).
     #[arg(long, value_delimiter = ',')]
     pub methods: Vec<String>,
     /// Output folder (default: tables/<scenario>/).
