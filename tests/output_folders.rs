@@ -266,3 +266,159 @@ fn a_full_disk_leaves_no_folder_and_no_staging() {
     assert!(!target.exists());
     assert!(names(tmp.path()).is_empty(), "{:?}", names(tmp.path()));
 }
+
+/// A single-file output (calibrate, train-gp, simulate) is written whole by an atomic rename:
+/// killed at random moments it is absent or the complete old file, never a prefix.
+fn file_version(path: &Path, read: &dyn Fn(&str) -> u64) -> u64 {
+    let text = std::fs::read_to_string(path).unwrap();
+    read(&text)
+}
+
+fn calibrate_cmd(out: &Path, version: u64, _force: bool) -> Command {
+    let mut c = aift();
+    // The version is in the calibration's tick count: duration 1 s + version ms.
+    c.args([
+        "calibrate",
+        "--runs",
+        "4",
+        "--set",
+        &format!("duration={}", 1.0 + version as f64 * 1e-3),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    c.stdout(Stdio::null()).stderr(Stdio::null());
+    c
+}
+
+fn calibration_version(path: &Path) -> u64 {
+    file_version(path, &|t| {
+        let v: serde_json::Value = serde_json::from_str(t).expect("whole JSON");
+        v["ticks"].as_u64().unwrap() - 1000
+    })
+}
+
+fn train_gp_cmd(out: &Path, version: u64, _force: bool) -> Command {
+    let mut c = aift();
+    c.args([
+        "train-gp",
+        "--points",
+        "60",
+        "--set",
+        &format!("gp.seed={version}"),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    c.stdout(Stdio::null()).stderr(Stdio::null());
+    c
+}
+
+fn gp_version(path: &Path) -> u64 {
+    file_version(path, &|t| {
+        let v: serde_json::Value = serde_json::from_str(t).expect("whole JSON");
+        v["seed"].as_u64().unwrap()
+    })
+}
+
+fn simulate_cmd(out: &Path, version: u64, _force: bool) -> Command {
+    let mut c = aift();
+    let urdf = common::repo("urdf/planar_2dof.urdf");
+    c.args([
+        "simulate",
+        "--urdf",
+        urdf.to_str().unwrap(),
+        "--q0",
+        "0.1,0.2",
+        "--duration",
+        &format!("{}", 1.0 + version as f64 * 1e-3),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    c.stdout(Stdio::null()).stderr(Stdio::null());
+    c
+}
+
+fn simulation_version(path: &Path) -> u64 {
+    file_version(path, &|t| {
+        assert!(t.ends_with('\n'), "a whole CSV ends with a newline");
+        // Header, the initial state and one row per tick.
+        t.lines().count() as u64 - 2 - 1000
+    })
+}
+
+/// A campaign folder, its version in the campaign's name.
+fn campaign_cmd(out: &Path, version: u64, force: bool) -> Command {
+    let file = out.with_file_name(format!("c{version}.toml"));
+    std::fs::write(
+        &file,
+        format!(
+            r#"
+name = "v{version}"
+seeds = 1
+methods = ["no-ft", "oracle"]
+set = ["robot.engine=\"articulated\"", "duration=9.0"]
+channels = ["enc*"]
+
+[[arms]]
+name = "paper"
+scenario = "{}"
+
+[[kinds]]
+kind = "freeze"
+onsets = ["moving"]
+
+[reaching]
+tasks = 1
+duration = 1.0
+calibration_runs = 2
+"#,
+            common::repo("assets/scenarios/paper_healthy.toml").display()
+        ),
+    )
+    .unwrap();
+    let mut c = aift();
+    c.args([
+        "campaign",
+        file.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    if force {
+        c.arg("--force");
+    }
+    c.stdout(Stdio::null()).stderr(Stdio::null());
+    c
+}
+
+fn campaign_version(dir: &Path) -> u64 {
+    let mut files = names(dir);
+    files.retain(|n| !n.starts_with("heatmap_"));
+    assert_eq!(
+        files,
+        sorted(&[
+            ".aift-output",
+            "campaign.csv",
+            "campaign.json",
+            "campaign.md",
+            "reaching.csv",
+            "records.json",
+        ]),
+        "{}",
+        dir.display()
+    );
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("campaign.json")).unwrap()).unwrap();
+    let name = v["campaign"].as_str().unwrap().to_string();
+    name.trim_start_matches('v').parse().unwrap()
+}
+
+#[test]
+fn killed_calibrations_gp_trainings_and_simulations_leave_the_old_file_or_none() {
+    kill_trials(&calibrate_cmd, &calibration_version, 10, 3);
+    kill_trials(&train_gp_cmd, &gp_version, 10, 4);
+    kill_trials(&simulate_cmd, &simulation_version, 10, 5);
+}
+
+#[test]
+fn killed_campaigns_never_leave_a_partial_or_mixed_folder() {
+    kill_trials(&campaign_cmd, &campaign_version, 10, 6);
+}

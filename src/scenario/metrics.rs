@@ -163,22 +163,26 @@ impl RunMetrics {
         let dt = sc.dt;
         let n = layout.n_joints();
         let ticks = sc.ticks();
-        let mut faulty_channels: Vec<usize> = setup
+        // Faults that start before the run ends (later ones never act: warned at set-up).
+        let acting: Vec<Fault> = setup
             .faults
+            .iter()
+            .filter(|f| f.start_tick(dt) < ticks)
+            .cloned()
+            .collect();
+        let mut faulty_channels: Vec<usize> = acting
             .iter()
             .flat_map(|f| f.channels.iter().copied())
             .collect();
         faulty_channels.sort_unstable();
         faulty_channels.dedup();
-        let mut faulty_joints: Vec<usize> = setup
-            .faults
+        let mut faulty_joints: Vec<usize> = acting
             .iter()
             .flat_map(|f| fault_joints(&layout, f))
             .collect();
         faulty_joints.sort_unstable();
         faulty_joints.dedup();
-        let windows = setup
-            .faults
+        let windows = acting
             .iter()
             .map(|f| {
                 let joints = fault_joints(&layout, f);
@@ -198,8 +202,8 @@ impl RunMetrics {
         Self {
             layout,
             dt,
-            first_fault: setup.faults.iter().map(|f| f.start_tick(dt)).min(),
-            faults: setup.faults.clone(),
+            first_fault: acting.iter().map(|f| f.start_tick(dt)).min(),
+            faults: acting,
             windows,
             faulty_channels,
             faulty_joints,

@@ -54,7 +54,7 @@ pub enum ScenarioError {
     Override { key: String, message: String },
     #[error(transparent)]
     Plant(#[from] PlantError),
-    #[error("{path}: `{field}`: {source}")]
+    #[error("{path}: `{field}`")]
     Robot {
         path: PathBuf,
         field: &'static str,
@@ -299,6 +299,60 @@ fn apply_override(table: &mut toml::Table, item: &str) -> Result<String, Scenari
     Ok(key.to_string())
 }
 
+/// Targets and faults that start at or after the run's end: legitimate (a run shortened with
+/// `--set duration=...`) but they never act; the metrics leave such faults out.
+fn late_settings(sc: &Scenario) -> Vec<String> {
+    let end = sc.duration;
+    let mut out = Vec::new();
+    for (i, t) in sc.targets.iter().enumerate() {
+        if t.time >= end {
+            out.push(format!(
+                "`targets[{i}].time` {} s is not before the run's end ({end} s): it never acts",
+                t.time
+            ));
+        }
+    }
+    for (i, f) in sc.faults.iter().enumerate() {
+        if f.start >= end {
+            out.push(format!(
+                "`faults[{i}].start` {} s is not before the run's end ({end} s): it never acts \
+                 and is left out of the faulty joints and detections",
+                f.start
+            ));
+        }
+    }
+    out
+}
+
+/// The initial state and every target inside the arm's joint limits (the physics would clamp
+/// them silently and the clamp would be reported as controller error).
+fn check_joint_limits(sc: &Scenario, model: &ArmModel, path: &Path) -> Result<(), ScenarioError> {
+    let check = |field: String, q: &[f64]| {
+        for (i, (v, joint)) in q.iter().zip(&model.joints).enumerate() {
+            if let Some((lo, hi)) = joint.limits
+                && !(lo - 1e-9..=hi + 1e-9).contains(v)
+            {
+                return Err(ScenarioError::Invalid {
+                    path: path.to_path_buf(),
+                    field: format!("{field}[{i}]"),
+                    message: format!(
+                        "{v} is outside joint {} ('{}')'s limits [{lo}, {hi}] in {}",
+                        i + 1,
+                        joint.name,
+                        model.source.display()
+                    ),
+                });
+            }
+        }
+        Ok(())
+    };
+    check("initial.q".into(), &sc.initial.q)?;
+    for (i, t) in sc.targets.iter().enumerate() {
+        check(format!("targets[{i}].q"), &t.q)?;
+    }
+    Ok(())
+}
+
 /// What every run of a scenario shares: the validated scenario, arm model, channel layout, GP
 /// and faults.
 #[derive(Clone)]
@@ -310,6 +364,8 @@ pub struct RunSetup {
     pub faults: Vec<Fault>,
     /// How the GP was obtained, for reports.
     pub gp_source: GpSource,
+    /// Legitimate but odd settings (a target or fault after the run's end), for stderr.
+    pub warnings: Vec<String>,
 }
 
 /// Where the GP came from.
@@ -331,6 +387,7 @@ impl RunSetup {
         let sc = &loaded.scenario;
         let layout = ChannelLayout::new(n, sc.camera.model);
         sc.validate(&layout, &loaded.path)?;
+        check_joint_limits(sc, &model, &loaded.path)?;
         if model.link(&sc.robot.ee_link).is_none() {
             return Err(ScenarioError::Robot {
                 path: loaded.path.clone(),
@@ -375,6 +432,7 @@ impl RunSetup {
                 )
             }
         };
+        let warnings = late_settings(&loaded.scenario);
         Ok(Self {
             model: Arc::new(model),
             layout,
@@ -382,6 +440,7 @@ impl RunSetup {
             faults,
             gp_source,
             loaded,
+            warnings,
         })
     }
 

@@ -317,14 +317,40 @@ fn load(args: &ScenarioArgs) -> Result<LoadedScenario, Failure> {
         Some(path) => LoadedScenario::from_file(path, &args.set),
         None => LoadedScenario::embedded_default(&args.set),
     }
-    .map_err(bad_input)
+    .map_err(|e| scenario_failure(e, &args.set))
+}
+
+/// A scenario error, exit 2; when the offending key was given by `--set`, the message says so.
+fn scenario_failure(error: aift::scenario::ScenarioError, overrides: &[String]) -> Failure {
+    let field = match &error {
+        aift::scenario::ScenarioError::Invalid { field, .. } => Some(field.as_str()),
+        aift::scenario::ScenarioError::Robot { field, .. } => Some(*field),
+        _ => None,
+    };
+    let from_set = field.and_then(|field| {
+        overrides.iter().find(|o| {
+            let key = o.split_once('=').map_or(o.as_str(), |(k, _)| k.trim());
+            field == key
+                || field.starts_with(&format!("{key}."))
+                || field.starts_with(&format!("{key}["))
+                || key.starts_with(&format!("{field}."))
+                || key.starts_with(&format!("{field}["))
+        })
+    });
+    match from_set {
+        Some(o) => bad_input(anyhow::Error::new(error).context(format!("--set {o}"))),
+        None => bad_input(error),
+    }
 }
 
 /// Loads the scenario, then the arm and the GP; the arm's warnings go to stderr.
 fn prepare(args: &ScenarioArgs) -> Result<RunSetup, Failure> {
-    let setup = RunSetup::prepare(load(args)?).map_err(bad_input)?;
+    let setup = RunSetup::prepare(load(args)?).map_err(|e| scenario_failure(e, &args.set))?;
     for w in &setup.model.warnings {
         eprintln!("warning: {}: {w}", setup.model.source.display());
+    }
+    for w in &setup.warnings {
+        eprintln!("warning: {}: {w}", setup.loaded.path.display());
     }
     Ok(setup)
 }

@@ -1,0 +1,381 @@
+//! Hostile and careless input through the CLI (issue 13), one test per class: counts beyond their
+//! bounds, reads of devices, FIFOs and folders, silent wrong results made loud (limits, late
+//! faults and targets, duplicated methods, a blown-up simulation, dt beyond the duration), errors
+//! naming the right key (and `--set` when the value came from it), bad output locations, the URDF
+//! items, and a calibration accepted whatever its alpha or isolation. Every refusal is exit 2,
+//! before any work, with nothing written. (Half-written folders: tests/output_folders.rs; fuzzing:
+//! tests/scenario_fuzz.rs and tests/urdf_validation.rs.)
+
+mod common;
+
+use std::path::Path;
+use std::process::{Command, Output};
+use std::time::{Duration, Instant};
+
+fn aift(args: &[&str], dir: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_aift"))
+        .args(args)
+        .current_dir(dir)
+        .env("AIFT_CACHE_DIR", "off")
+        .output()
+        .unwrap()
+}
+
+/// Runs a command that must be refused: exit 2 within `limit`, stderr containing every needle,
+/// nothing at `out`.
+fn refused(args: &[&str], needles: &[&str], dir: &Path, out: &str) {
+    let start = Instant::now();
+    let o = aift(args, dir);
+    let took = start.elapsed();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{args:?}: {stderr}");
+    for n in needles {
+        assert!(stderr.contains(n), "{args:?}: lacks {n:?}: {stderr}");
+    }
+    assert!(!dir.join(out).exists(), "{args:?} wrote {out}");
+    // Refusals come before the work (a generous bound; not a timing assertion on speed).
+    assert!(took < Duration::from_secs(20), "{args:?} took {took:?}");
+}
+
+fn scenario(name: &str) -> String {
+    common::repo(&format!("assets/scenarios/{name}"))
+        .to_string_lossy()
+        .into_owned()
+}
+
+#[test]
+fn counts_beyond_their_bounds_are_refused_before_any_work() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let urdf = common::repo("urdf/planar_2dof.urdf");
+    let urdf = urdf.to_str().unwrap();
+    for (args, needles) in [
+        (
+            vec![
+                "run",
+                "--set",
+                "detector.calibration_runs=1000000000",
+                "--out",
+                "o",
+            ],
+            vec!["detector.calibration_runs", "10000"],
+        ),
+        (
+            vec![
+                "run",
+                "--set",
+                "robot.solver_iterations=100000000",
+                "--out",
+                "o",
+            ],
+            vec!["robot.solver_iterations"],
+        ),
+        (
+            vec!["table", "--seeds", "1000000000", "--out", "o"],
+            vec!["--seeds"],
+        ),
+        (vec!["bench", "--ticks", "100000000000"], vec!["--ticks"]),
+        (
+            vec!["run", "--set", "duration=1e12", "--out", "o"],
+            vec!["duration"],
+        ),
+        (
+            vec!["run", "--set", "gp.points=100000000", "--out", "o"],
+            vec!["gp.points"],
+        ),
+        (
+            vec![
+                "simulate",
+                "--urdf",
+                urdf,
+                "--ee",
+                "ee",
+                "--q0",
+                "0,0",
+                "--duration",
+                "1",
+                "--iterations",
+                "100000000",
+                "--out",
+                "o",
+            ],
+            vec!["--iterations"],
+        ),
+    ] {
+        refused(&args, &needles, d, "o");
+    }
+}
+
+#[test]
+fn devices_fifos_and_folders_are_not_read() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let fifo = d.join("fifo.toml");
+    let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
+    // SAFETY: creates a FIFO in our temporary folder.
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+    for path in ["/dev/zero", fifo.to_str().unwrap(), d.to_str().unwrap()] {
+        refused(&["run", path, "--out", "o"], &[path], d, "o");
+        refused(&["check-urdf", path], &[path], d, "o");
+    }
+    // A scenario whose URDF is a device: named with its key.
+    refused(
+        &["run", "--set", "robot.urdf=\"/dev/zero\"", "--out", "o"],
+        &["robot.urdf", "/dev/zero"],
+        d,
+        "o",
+    );
+}
+
+#[test]
+fn silent_wrong_results_become_errors_or_warnings() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let spatial = scenario("spatial3_healthy.toml");
+    // Outside the joint limits: the physics would clamp it silently.
+    refused(
+        &[
+            "run",
+            &spatial,
+            "--set",
+            "initial.q=[5.0, 0.0, 0.0]",
+            "--out",
+            "o",
+        ],
+        &["initial.q[0]", "limits", "--set initial.q"],
+        d,
+        "o",
+    );
+    refused(
+        &[
+            "run",
+            &spatial,
+            "--set",
+            "targets[0].q=[0.0, 0.0, 9.0]",
+            "--out",
+            "o",
+        ],
+        &["targets[0].q[2]", "limits"],
+        d,
+        "o",
+    );
+    // Two identical methods would claim twice the seeds.
+    refused(
+        &["table", "--methods", "no-ft,no-ft", "--out", "o"],
+        &["no-ft", "twice"],
+        d,
+        "o",
+    );
+    // dt beyond the duration is blamed on the duration, not on a learner's window.
+    refused(
+        &[
+            "run",
+            "--set",
+            "dt=0.05",
+            "--set",
+            "duration=0.01",
+            "--out",
+            "o",
+        ],
+        &["`duration`"],
+        d,
+        "o",
+    );
+    // A fault after the end: a warning, and the run reports no faulty joint.
+    let o = aift(
+        &[
+            "run",
+            &scenario("paper_encoder_freeze.toml"),
+            "--set",
+            "duration=5.0",
+            "--out",
+            "late",
+        ],
+        d,
+    );
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("warning") && stderr.contains("`faults[0].start`"),
+        "{stderr}"
+    );
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("late/summary.json")).unwrap())
+            .unwrap();
+    assert!(summary["mse_faulty"].is_null(), "{summary}");
+    assert_eq!(summary["faulty_joints"], serde_json::json!([]));
+    // A simulation that blows up is an error, not a success with 1e296 in the file.
+    let urdf = common::repo("urdf/planar_2dof_undamped.urdf");
+    refused(
+        &[
+            "simulate",
+            "--urdf",
+            urdf.to_str().unwrap(),
+            "--ee",
+            "ee",
+            "--q0",
+            "0,0",
+            "--torque",
+            "1e200,1e200",
+            "--duration",
+            "1",
+            "--out",
+            "blow.csv",
+        ],
+        &["blew up", "nothing written"],
+        d,
+        "blow.csv",
+    );
+}
+
+#[test]
+fn errors_name_the_key_and_the_set_that_gave_it() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    refused(
+        &["run", "--set", "robot.ee_link=\"nolink\"", "--out", "o"],
+        &["--set robot.ee_link", "`robot.ee_link`", "nolink"],
+        d,
+        "o",
+    );
+    refused(
+        &["run", "--set", "camera.sigma=1e300", "--out", "o"],
+        &["camera.sigma"],
+        d,
+        "o",
+    );
+    refused(
+        &["run", "--set", "precision.kappa_zeta=-1", "--out", "o"],
+        &["--set precision.kappa_zeta", "`precision.kappa_zeta`"],
+        d,
+        "o",
+    );
+    // A newline in a --set value would smuggle in a second key.
+    refused(
+        &["run", "--set", "seed=2\nduration=1.0", "--out", "o"],
+        &["--set", "newline"],
+        d,
+        "o",
+    );
+    // The end-effector error says it once.
+    let o = aift(
+        &["run", "--set", "robot.ee_link=\"nolink\"", "--out", "o"],
+        d,
+    );
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(stderr.matches("does not exist").count(), 1, "{stderr}");
+}
+
+#[test]
+fn bad_output_locations_are_input_errors_found_before_the_work() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    std::fs::write(d.join("file"), "x").unwrap();
+    std::fs::create_dir(d.join("folder")).unwrap();
+    for (args, out) in [
+        (vec!["run", "--out", "/proc/aift-out"], "/proc/aift-out"),
+        (vec!["run", "--out", "file/below"], "file/below"),
+        (
+            vec!["calibrate", "--runs", "2", "--out", "folder"],
+            "folder/x",
+        ),
+        (vec!["train-gp", "--out", "/proc/gp.json"], "/proc/gp.json"),
+    ] {
+        refused(&args, &[args[args.len() - 1]], d, out);
+    }
+}
+
+#[test]
+fn urdf_negative_dynamics_and_a_second_robot_are_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let base = std::fs::read_to_string(common::repo("urdf/spatial_3dof.urdf")).unwrap();
+    for (name, text, needle) in [
+        (
+            "negative_damping",
+            base.replacen("damping=\"", "damping=\"-", 1),
+            "damping",
+        ),
+        (
+            "negative_effort",
+            base.replacen("effort=\"", "effort=\"-", 1),
+            "effort",
+        ),
+        (
+            "second_robot",
+            format!("{base}\n<robot name=\"again\"></robot>\n"),
+            "robot",
+        ),
+    ] {
+        let file = d.join(format!("{name}.urdf"));
+        std::fs::write(&file, &text).unwrap();
+        assert_ne!(text, base, "{name}: the edit did not apply");
+        refused(
+            &["check-urdf", file.to_str().unwrap()],
+            &[needle, &format!("{name}.urdf")],
+            d,
+            "o",
+        );
+    }
+}
+
+#[test]
+fn a_calibration_is_accepted_whatever_alpha_isolation_or_test() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let s = scenario("paper_encoder_freeze.toml");
+    let o = aift(
+        &[
+            "calibrate",
+            &s,
+            "--runs",
+            "4",
+            "--set",
+            "duration=9.0",
+            "--out",
+            "cal.json",
+        ],
+        d,
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = aift(
+        &[
+            "run",
+            &s,
+            "--method",
+            "pl-detect",
+            "--calib",
+            "cal.json",
+            "--set",
+            "duration=9.0",
+            "--set",
+            "detector.alpha=0.05",
+            "--set",
+            "detector.isolation=\"group\"",
+            "--set",
+            "detector.test=\"cusum\"",
+            "--out",
+            "r",
+        ],
+        d,
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // What the data depend on (the schedule) still has to match.
+    refused(
+        &[
+            "run",
+            &s,
+            "--method",
+            "pl-detect",
+            "--calib",
+            "cal.json",
+            "--set",
+            "duration=10.0",
+            "--out",
+            "r2",
+        ],
+        &["cal.json"],
+        d,
+        "r2",
+    );
+}
