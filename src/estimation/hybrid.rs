@@ -164,6 +164,11 @@ pub struct Hybrid {
     floor: f64,
     initialised: bool,
     ticks: u64,
+    // Scratch: the model acceleration, the per-joint process noise, each hypothesis' log
+    // evidence.
+    ll: Vec<f64>,
+    acc: Vec<f64>,
+    noise: Vec<f64>,
 }
 
 impl Hybrid {
@@ -210,6 +215,9 @@ impl Hybrid {
             floor,
             initialised: false,
             ticks: 0,
+            ll: vec![0.0; h],
+            acc: vec![0.0; layout.n_joints()],
+            noise: vec![0.0; layout.n_joints()],
         }
     }
 
@@ -287,26 +295,35 @@ impl Hybrid {
             }
             self.initialised = true;
         } else {
-            let acc = match &mut self.model {
+            let n = self.layout.n_joints();
+            let has_acc = match &mut self.model {
                 Some(m) => {
-                    let n = self.layout.n_joints();
                     let x = self.uaic.belief();
-                    m.acceleration(&x[..n], &x[n..], input.applied_torques)
-                        .map(<[f64]>::to_vec)
+                    match m.acceleration(&x[..n], &x[n..], input.applied_torques) {
+                        Some(a) => {
+                            self.acc.copy_from_slice(a);
+                            true
+                        }
+                        None => false,
+                    }
                 }
-                None => None,
+                None => false,
             };
-            let noise: Option<Vec<f64>> = acc.as_ref().map(|a| {
-                a.iter()
-                    .map(|a| {
-                        self.config
-                            .model_acceleration_noise
-                            .max(self.config.model_relative_error * a.abs())
-                    })
-                    .collect()
-            });
+            if has_acc {
+                for (s, a) in self.noise.iter_mut().zip(&self.acc) {
+                    *s = self
+                        .config
+                        .model_acceleration_noise
+                        .max(self.config.model_relative_error * a.abs());
+                }
+            }
+            let (acc, noise) = if has_acc {
+                (Some(self.acc.as_slice()), Some(self.noise.as_slice()))
+            } else {
+                (None, None)
+            };
             for f in &mut self.bank {
-                f.predict_with_noise(acc.as_deref(), noise.as_deref());
+                f.predict_with_noise(acc, noise);
             }
             // The switching prior: stay with 1 - s, leave to each other hypothesis with s/(h-1).
             let s = self.config.switch;
@@ -316,7 +333,7 @@ impl Hybrid {
                 *p = (1.0 - s) * *p + leave * (total - *p);
             }
         }
-        let mut ll = vec![0.0; h];
+        let mut ll = std::mem::take(&mut self.ll);
         linearise_bank(&mut self.bank);
         for j in 0..h {
             self.hypothesis_variances(j, input);
@@ -332,6 +349,7 @@ impl Hybrid {
         for p in &mut self.probability {
             *p = (*p / total).max(1e-300);
         }
+        self.ll = ll;
     }
 }
 
@@ -392,8 +410,7 @@ impl Estimator for Hybrid {
                 }
             }
         }
-        let precisions = self.precisions.clone();
-        self.uaic.step(input.readings, &precisions)
+        self.uaic.step(input.readings, &self.precisions)
     }
 
     fn estimate(&self) -> &Estimate {

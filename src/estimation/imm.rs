@@ -137,8 +137,9 @@ impl Estimator for Imm {
         let h = self.filters.len();
         let m = self.nominal.len();
         // Channels the caller leaves out (precision 0) are left out of every hypothesis.
-        let off: Vec<bool> = input.precisions.iter().map(|w| *w <= 0.0).collect();
-        let variance = |hyp: &[f64], c: usize| if off[c] { f64::INFINITY } else { hyp[c] };
+        let precisions = input.precisions;
+        let off = |c: usize| precisions[c] <= 0.0;
+        let variance = |hyp: &[f64], c: usize| if off(c) { f64::INFINITY } else { hyp[c] };
         if !self.initialised {
             for (f, v) in self.filters.iter_mut().zip(&self.variances) {
                 let vv: Vec<f64> = (0..m).map(|c| variance(v, c)).collect();
@@ -182,18 +183,16 @@ impl Estimator for Imm {
             let acc = match &mut self.model {
                 Some(model) => {
                     let n = self.n;
-                    model
-                        .acceleration(
-                            &self.x.as_slice()[..n],
-                            &self.x.as_slice()[n..],
-                            input.applied_torques,
-                        )
-                        .map(<[f64]>::to_vec)
+                    model.acceleration(
+                        &self.x.as_slice()[..n],
+                        &self.x.as_slice()[n..],
+                        input.applied_torques,
+                    )
                 }
                 None => None,
             };
             for f in &mut self.filters {
-                f.predict(acc.as_deref());
+                f.predict(acc);
             }
         }
         linearise_bank(&mut self.filters);
@@ -234,7 +233,7 @@ impl Estimator for Imm {
         self.combined
             .report_posterior(input.readings, &mut self.report);
         for c in 0..m {
-            self.used[c] = if off[c] {
+            self.used[c] = if off(c) {
                 0.0
             } else {
                 self.nominal[c] * (1.0 - self.probability[c + 1])

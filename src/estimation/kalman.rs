@@ -146,14 +146,9 @@ impl ArmDynamics {
     /// qdd at (q, qd) under torques u; None if the mass matrix is singular.
     pub fn acceleration(&mut self, q: &[f64], qd: &[f64], u: &[f64]) -> Option<&[f64]> {
         self.chain.set_state(q, qd);
-        let (m, bias) = self.chain.mass_matrix_and_bias(&self.gravity);
-        let rhs = DVector::from_iterator(
-            u.len(),
-            (0..u.len()).map(|i| u[i] - bias[i] - self.damping[i] * qd[i]),
-        );
-        let sol = m.cholesky()?.solve(&rhs);
-        self.acc.copy_from_slice(sol.as_slice());
-        Some(&self.acc)
+        self.chain
+            .forward_dynamics(u, &self.gravity, &mut self.acc)
+            .then_some(&self.acc)
     }
 
     pub fn damping(&self) -> &[f64] {
@@ -504,12 +499,9 @@ fn predict_with(ekf: &mut Ekf, model: &mut Option<ArmDynamics>, torques: &[f64])
     let n = ekf.n();
     match model {
         Some(m) => {
-            let (q, qd): (Vec<f64>, Vec<f64>) = (
-                ekf.x.as_slice()[..n].to_vec(),
-                ekf.x.as_slice()[n..].to_vec(),
-            );
-            let acc = m.acceleration(&q, &qd, torques).map(<[f64]>::to_vec);
-            ekf.predict(acc.as_deref());
+            let x = ekf.x.as_slice();
+            let acc = m.acceleration(&x[..n], &x[n..], torques);
+            ekf.predict(acc);
         }
         None => ekf.predict(None),
     }
@@ -657,6 +649,8 @@ pub struct VbAkf {
     mu_p: Vec<f64>,
     report: Estimate,
     min_ratio: f64,
+    /// Scratch: each channel's noise variance this tick.
+    variances: Vec<f64>,
 }
 
 impl VbAkf {
@@ -689,6 +683,7 @@ impl VbAkf {
             report: Estimate::new(&layout),
             ekf,
             min_ratio,
+            variances: vec![0.0; nominal.len()],
         }
     }
 }
@@ -703,7 +698,7 @@ impl VbAkf {
 impl Estimator for VbAkf {
     fn update(&mut self, input: &EstimatorInput<'_>) -> &Estimate {
         let m = self.nominal.len();
-        let mut variances = vec![0.0; m];
+        let mut variances = std::mem::take(&mut self.variances);
         let off = |c: usize| input.precisions[c] <= 0.0;
         if !self.ekf.initialised() {
             for c in 0..m {
@@ -781,6 +776,7 @@ impl Estimator for VbAkf {
             self.mu.copy_from_slice(&self.ekf.x.as_slice()[..n]);
             self.mu_p.copy_from_slice(&self.ekf.x.as_slice()[n..]);
         }
+        self.variances = variances;
         &self.report
     }
 

@@ -165,6 +165,9 @@ pub struct Uaic {
     /// The propagated prior's precision matrix and its scratch.
     prior_info: DMatrix<f64>,
     prior_cov: DMatrix<f64>,
+    prior_factor: DMatrix<f64>,
+    /// ln |prior_info|.
+    prior_log_det: f64,
     /// The camera model at the update point, and its first-order value at the new belief.
     g_point: Vec<f64>,
     g_post: Vec<f64>,
@@ -203,6 +206,8 @@ impl Uaic {
             ex: vec![0.0; 2 * n],
             prior_info: DMatrix::zeros(2 * n, 2 * n),
             prior_cov: DMatrix::zeros(2 * n, 2 * n),
+            prior_factor: DMatrix::zeros(2 * n, 2 * n),
+            prior_log_det: 0.0,
             g_point: vec![0.0; r],
             g_post: vec![0.0; r],
             jac: vec![0.0; r * n],
@@ -274,15 +279,30 @@ impl Uaic {
             q[(n + i, i)] += s2 * dt.powi(3) / 2.0;
             q[(n + i, n + i)] += s2 * dt * dt;
         }
-        match self.prior_cov.clone().cholesky() {
-            Some(ch) => self.prior_info = ch.inverse(),
+        // Factor in reused storage (no allocation): prior_info = Sigma_prior^-1 and
+        // ln |prior_info| = -2 sum ln L_ii.
+        let d = 2 * n;
+        let mut storage = std::mem::replace(&mut self.prior_factor, DMatrix::zeros(0, 0));
+        storage.copy_from(&self.prior_cov);
+        match nalgebra::linalg::Cholesky::new(storage) {
+            Some(ch) => {
+                self.prior_info.fill_with_identity();
+                ch.solve_mut(&mut self.prior_info);
+                let l = ch.l_dirty();
+                self.prior_log_det = -2.0 * (0..d).map(|i| l[(i, i)].ln()).sum::<f64>();
+                self.prior_factor = ch.unpack_dirty();
+            }
             None => {
                 // A degenerate covariance: fall back to the fixed diagonal prior.
+                self.prior_factor = DMatrix::zeros(d, d);
                 self.prior_info.fill(0.0);
                 for i in 0..n {
                     self.prior_info[(i, i)] = self.config.prior_position_precision;
                     self.prior_info[(n + i, n + i)] = self.config.prior_velocity_precision;
                 }
+                self.prior_log_det = n as f64
+                    * (self.config.prior_position_precision.ln()
+                        + self.config.prior_velocity_precision.ln());
             }
         }
     }
@@ -554,9 +574,7 @@ impl Uaic {
                     quad += ex[a] * self.prior_info[(a, b)] * ex[b];
                 }
             }
-            let log_det = self.prior_info.clone().cholesky().map_or(0.0, |c| {
-                2.0 * c.l().diagonal().iter().map(|d| d.ln()).sum::<f64>()
-            });
+            let log_det = self.prior_log_det;
             free_energy += 0.5 * (quad - log_det);
         } else {
             self.prior_residual(&self.x, &self.x_prev, &mut ex);

@@ -275,6 +275,20 @@ impl Chain {
         (self.m.clone(), self.bias.iter().copied().collect())
     }
 
+    /// The forward dynamics at the state set: qdd = M^-1 (u - bias - D qd) into `out`, without
+    /// allocating; false (and `out` untouched) if M is singular.
+    pub fn forward_dynamics(&mut self, u: &[f64], g: &Vector3<f64>, out: &mut [f64]) -> bool {
+        self.dynamics(g);
+        for i in 0..self.n_joints() {
+            self.rhs[i] = u[i] - self.bias[i] - self.joints[i].damping * self.qd[i];
+        }
+        if !self.solve_damped(0.0) {
+            return false;
+        }
+        out.copy_from_slice(self.rhs.as_slice());
+        true
+    }
+
     /// Solves (M + h D) x = rhs in place (rhs holds the right-hand side), without allocating.
     fn solve_damped(&mut self, h: f64) -> bool {
         let n = self.n_joints();

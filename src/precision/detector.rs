@@ -431,12 +431,14 @@ pub struct Detector {
     cusum_threshold: f64,
     /// Per channel: the CUSUM sums (S+, S-).
     cusum: Vec<(f64, f64)>,
+    /// Scratch: the tested group's channels not isolated.
+    active: Vec<usize>,
     state: Detection,
     /// Per channel: consecutive quiet ticks while isolated.
     quiet: Vec<u64>,
     /// Per channel: the alarm that isolated it.
     isolated_by: Vec<Option<usize>>,
-    scratch: DVector<f64>,
+    scratch: Vec<f64>,
 }
 
 impl Detector {
@@ -488,13 +490,14 @@ impl Detector {
             cusum_drift: config.cusum_drift,
             cusum_threshold: config.cusum_threshold,
             cusum: vec![(0.0, 0.0); layout.len()],
+            active: Vec::with_capacity(layout.len()),
             state: Detection {
                 normalised_distance: vec![None; layout.groups().len()],
                 ..Detection::default()
             },
             quiet: vec![0; layout.len()],
             isolated_by: vec![None; layout.len()],
-            scratch: DVector::zeros(0),
+            scratch: vec![0.0; layout.len()],
         }
     }
 
@@ -507,6 +510,7 @@ impl Detector {
     pub fn check(&mut self, tick: u64, innovations: &[Option<f64>]) -> &Detection {
         let t = tick as usize;
         let one_d_bound = (1.0 / self.alpha).sqrt();
+        let mut active = std::mem::take(&mut self.active);
         for gi in 0..self.tests.len() {
             self.state.normalised_distance[gi] = None;
             let test = &self.tests[gi];
@@ -517,9 +521,6 @@ impl Detector {
                 continue;
             }
             let dim = test.dim;
-            if self.scratch.len() != dim {
-                self.scratch = DVector::zeros(dim);
-            }
             for (j, &c) in test.channels.iter().enumerate() {
                 self.scratch[j] = innovations[c].unwrap_or(0.0) - test.mean[t * dim + j];
             }
@@ -552,9 +553,8 @@ impl Detector {
                     .retain(|&c| self.isolated_by[c].is_some());
             }
             // The test over the channels not isolated.
-            let active: Vec<usize> = (0..dim)
-                .filter(|&j| self.isolated_by[test.channels[j]].is_none())
-                .collect();
+            active.clear();
+            active.extend((0..dim).filter(|&j| self.isolated_by[test.channels[j]].is_none()));
             if active.is_empty() {
                 continue;
             }
@@ -589,7 +589,17 @@ impl Detector {
                 continue;
             }
             let d2 = if active.len() == dim {
-                (inv * &self.scratch).dot(&self.scratch)
+                // r' C^-1 r without a temporary.
+                let r = &self.scratch[..dim];
+                let mut q = 0.0;
+                for b in 0..dim {
+                    let mut row = 0.0;
+                    for a in 0..dim {
+                        row += inv[(a, b)] * r[a];
+                    }
+                    q += row * r[b];
+                }
+                q
             } else {
                 let k = active.len();
                 let sub = DMatrix::from_fn(k, k, |a, b| {
@@ -624,6 +634,7 @@ impl Detector {
                 self.raise(tick, group, channels);
             }
         }
+        self.active = active;
         &self.state
     }
 

@@ -25,7 +25,7 @@ pub use config::{
     ControllerConfig, GpConfig, MAX_TICKS, PrecisionConfig, RobotConfig, Scenario, Target,
 };
 pub use method::Method;
-pub use metrics::{FaultOutcome, RunResult};
+pub use metrics::{FaultOutcome, RunMetrics, RunResult};
 pub use runner::{
     NoObserver, Observer, Observers, Outcome, Simulation, TickRecord, run, run_parts,
 };
