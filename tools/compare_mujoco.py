@@ -38,6 +38,7 @@ directory, or to the repository root if they do not exist there)::
 
     tools/compare_mujoco.py                       # paper arm, 20000 steps, 5 repeats
     tools/compare_mujoco.py --check-dynamics
+    tools/compare_mujoco.py --set robot.engine=articulated   # aift's own engine
     tools/compare_mujoco.py --urdf urdf/spatial_3dof.urdf \\
         --scenario assets/scenarios/spatial3_encoder_freeze.toml --repeats 3
 
@@ -334,8 +335,10 @@ class RolloutRunner:
         return self.n / elapsed, self.out[0, -1, self.qpos_slice].copy()
 
 
-def run_aift_bench(aift, scenario, n):
+def run_aift_bench(aift, scenario, n, sets=()):
     cmd = [str(aift), "bench", str(scenario), "--ticks", str(n)]
+    for kv in sets:
+        cmd += ["--set", kv]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
         sys.exit(f"`{' '.join(cmd)}` failed ({proc.returncode}):\n{proc.stderr.strip()}")
@@ -441,6 +444,8 @@ def main():
     ap.add_argument("--scenario", default=None,
                     help="aift scenario using that URDF "
                          "(default assets/scenarios/paper_encoder_freeze.toml)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="passed to `aift bench --set` (repeatable), e.g. robot.engine=articulated")
     ap.add_argument("--steps", type=int, default=20000, help="steps/ticks per timed run (20000)")
     ap.add_argument("--repeats", type=int, default=5, help="timed runs of each figure (5)")
     ap.add_argument("--aift", default=None, help="aift binary (default target/release/aift)")
@@ -535,7 +540,7 @@ def main():
                 res["rollout"].append(v)
 
         def aift_run():
-            fig = run_aift_bench(args.aift, scenario, args.steps)
+            fig = run_aift_bench(args.aift, scenario, args.steps, args.set)
             res["aift_phys"].append(fig["physics_ticks_per_s"])
             res["aift_closed"].append(fig["closed_loop_ticks_per_s"])
 
@@ -560,7 +565,7 @@ def main():
         ("MuJoCo mj_step, Python loop (steps/s)", res["loop"]),
         ("MuJoCo mj_step(nstep=N), C loop (steps/s)", res["nstep"]),
         ("MuJoCo rollout, C loop + state copy (steps/s)", res["rollout"]),
-        ("aift physics only, rapier (ticks/s)", res["aift_phys"]),
+        ("aift physics only (ticks/s)", res["aift_phys"]),
         ("aift closed loop (ticks/s)" + ("*" if closed_note else ""), res["aift_closed"]),
     ]
     print()

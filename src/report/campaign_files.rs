@@ -102,7 +102,7 @@ pub fn write_campaign(
 
 fn csv(campaign: &Campaign, records: &CampaignRecords, cells: &[CellSummary]) -> String {
     let mut out = String::from(
-        "row,arm,cell,channel,kind,onset,method,seed,outcome,verdict,mse_post,ratio_to_oracle,max_final_error,runaway,detected,detection_delay,isolation_correct,false_alarms,false_alarms_per_hour,recover_time,worse_than_no_ft\n",
+        "row,arm,cell,channel,kind,onset,method,seed,outcome,verdict,mse_post,mse_post_std,ratio_to_oracle,max_final_error,runaway,detected,detection_delay,isolation_correct,false_alarms,false_alarms_per_hour,recover_time,worse_than_no_ft\n",
     );
     let cell_cols = |c: usize| {
         let cell = &campaign.cells[c];
@@ -118,7 +118,7 @@ fn csv(campaign: &Campaign, records: &CampaignRecords, cells: &[CellSummary]) ->
     for r in &records.runs {
         let _ = writeln!(
             out,
-            "run,{},{},{},{},{},{},,{},{},{},{},{},{},,{},",
+            "run,{},{},{},{},{},{},,,{},{},{},{},{},{},,{},",
             cell_cols(r.cell),
             r.method,
             r.seed,
@@ -137,12 +137,13 @@ fn csv(campaign: &Campaign, records: &CampaignRecords, cells: &[CellSummary]) ->
     for s in cells {
         let _ = writeln!(
             out,
-            "cell,{},{},{},,{},{},{},{},{},{},{},{},,{},{},{}",
+            "cell,{},{},{},,{},{},{},{},{},{},{},{},{},,{},{},{}",
             cell_cols(s.cell),
             s.method,
             s.seeds,
             s.verdict.name(),
             s.mse_post_mean,
+            s.mse_post_std,
             opt(s.ratio_to_oracle),
             s.final_error_mean,
             s.runaways,
