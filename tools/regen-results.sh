@@ -12,6 +12,8 @@ if [ ${#names[@]} -eq 0 ]; then
 fi
 for n in "${names[@]}"; do
     echo "== $n" >&2
+    # Tables written before output folders were marked: --force replaces marked folders only.
+    if [ -d "results/$n" ] && [ ! -e "results/$n/.aift-output" ]; then rm -rf "results/$n"; fi
     ./target/release/aift table "assets/scenarios/$n.toml" --seeds 20 --out "results/$n" --force \
         > "results/$n.log" 2>&1
 done

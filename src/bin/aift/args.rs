@@ -35,6 +35,15 @@ pub enum Command {
     Campaign(CampaignArgs),
     /// Merge the shards of a campaign into the files of the whole campaign.
     Merge(MergeArgs),
+    /// Print a shell completion script, e.g. `aift completions bash > ~/.local/share/bash-completion/completions/aift`.
+    Completions(CompletionsArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct CompletionsArgs {
+    /// The shell.
+    #[arg(value_enum)]
+    pub shell: clap_complete::Shell,
 }
 
 #[derive(Debug, Args)]
@@ -59,6 +68,9 @@ pub struct CampaignArgs {
     /// Override a value of every arm's scenario (repeatable).
     #[arg(long = "set", value_name = "KEY=VALUE", allow_hyphen_values = true)]
     pub set: Vec<String>,
+    /// Print one JSON document on stdout (campaign.json; for a shard, what it ran and wrote); everything else goes to stderr.
+    #[arg(long)]
+    pub json: bool,
 }
 
 #[derive(Debug, Args)]
@@ -107,8 +119,8 @@ pub struct ScenarioArgs {
 pub struct RunArgs {
     #[command(flatten)]
     pub scenario: ScenarioArgs,
-    /// Method: no-ft, pl-always, pl-detect, deterministic, bayes, window, oracle (default: the
-    /// scenario's, pl-always unless it says otherwise).
+    /// Method: no-ft, pl-always, pl-detect, deterministic, bayes, window, hybrid, ekf-gate,
+    /// vb-akf, imm, oracle (default: the scenario's, pl-always unless it says otherwise).
     #[arg(long)]
     pub method: Option<String>,
     /// Sensor-noise seed (default: the scenario's).
@@ -123,6 +135,9 @@ pub struct RunArgs {
     /// Detector calibration file (pl-detect, deterministic); default: calibrate on the fly.
     #[arg(long)]
     pub calib: Option<PathBuf>,
+    /// Print one JSON document on stdout (the run's summary.json); everything else goes to stderr.
+    #[arg(long)]
+    pub json: bool,
 }
 
 #[derive(Debug, Args)]
@@ -144,6 +159,9 @@ pub struct TableArgs {
     /// Detector calibration file; default: calibrate on the fly.
     #[arg(long)]
     pub calib: Option<PathBuf>,
+    /// Print one JSON document on stdout (the table's table.json); everything else goes to stderr.
+    #[arg(long)]
+    pub json: bool,
 }
 
 #[derive(Debug, Args)]
@@ -190,6 +208,9 @@ pub struct CheckUrdfArgs {
     /// just enough), with a warning naming the link.
     #[arg(long)]
     pub balance_inertia: bool,
+    /// Print one JSON document on stdout (the arm: joints, links, masses, end effector, warnings); everything else goes to stderr.
+    #[arg(long)]
+    pub json: bool,
 }
 
 /// A comma-separated list of finite numbers, e.g. `-1.2,0.8`.

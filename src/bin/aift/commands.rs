@@ -17,6 +17,25 @@ use crate::args::{
     RunArgs, ScenarioArgs, SimulateArgs, TableArgs, TrainGpArgs,
 };
 
+/// A line for people: on stdout, or on stderr when `--json` keeps stdout for one JSON document.
+macro_rules! say {
+    ($json:expr, $($arg:tt)*) => {
+        if $json {
+            eprintln!($($arg)*)
+        } else {
+            println!($($arg)*)
+        }
+    };
+}
+
+/// Prints the JSON document `--json` asks for: a file the command wrote, as written.
+fn print_json_file(path: &Path) -> Result<(), Failure> {
+    let text =
+        aift::fsio::read_text(path, aift::fsio::MAX_CALIBRATION_BYTES).map_err(file_failure)?;
+    println!("{}", text.trim_end());
+    Ok(())
+}
+
 /// A failed command: the error and the exit code it maps to.
 pub struct Failure {
     pub error: anyhow::Error,
@@ -82,6 +101,16 @@ pub fn dispatch(cli: Cli) -> Result<(), Failure> {
         Command::Init(args) => init(args),
         Command::Campaign(args) => campaign(args),
         Command::Merge(args) => merge(args),
+        Command::Completions(args) => {
+            use clap::CommandFactory;
+            clap_complete::generate(
+                args.shell,
+                &mut Cli::command(),
+                "aift",
+                &mut std::io::stdout(),
+            );
+            Ok(())
+        }
     }
 }
 
@@ -181,12 +210,14 @@ fn campaign(args: CampaignArgs) -> Result<(), Failure> {
         .map_err(|e| report_failure(ReportError::File(e)))?;
     if shard == Shard::WHOLE {
         let (_, methods) = aift::scenario::campaign::summarise(&campaign, &records.runs);
-        println!(
+        say!(
+            args.json,
             "| method | recovered | degraded | failed | diverged | worse than no-FT | recovers where the oracle does |"
         );
-        println!("|---|---|---|---|---|---|---|");
+        say!(args.json, "|---|---|---|---|---|---|---|");
         for m in methods {
-            println!(
+            say!(
+                args.json,
                 "| {} | {} | {} | {} | {} | {} | {}/{} |",
                 m.method,
                 m.recovered,
@@ -199,13 +230,29 @@ fn campaign(args: CampaignArgs) -> Result<(), Failure> {
             );
         }
     }
-    println!(
+    say!(
+        args.json,
         "{} runs in {:.1} s on {} threads; wrote {}/",
         records.runs.len() + records.reaching.len(),
         start.elapsed().as_secs_f64(),
         rayon::current_num_threads(),
         dir.display()
     );
+    if args.json {
+        if shard == Shard::WHOLE {
+            print_json_file(&dir.join("campaign.json"))?;
+        } else {
+            let doc = serde_json::json!({
+                "format_version": aift::scenario::campaign::CAMPAIGN_FORMAT,
+                "campaign": records.campaign,
+                "fingerprint": records.fingerprint,
+                "shard": format!("{}/{}", shard.index, shard.count),
+                "runs": records.runs.len() + records.reaching.len(),
+                "records": dir.join(report::campaign_files::RECORDS),
+            });
+            println!("{doc}");
+        }
+    }
     Ok(())
 }
 
@@ -442,21 +489,24 @@ fn run(args: RunArgs) -> Result<(), Failure> {
     let result = run_files::run_into(staged, &setup, method, seed, calibration.as_deref())
         .map_err(report_failure)?;
     let fmt_opt = |v: Option<f64>| v.map_or("n/a".to_string(), |x| format!("{x:.3e}"));
-    println!(
+    say!(
+        args.json,
         "scenario {} | method {} | seed {} | GP {}",
         setup.scenario().name,
         method,
         seed,
         describe_gp(&setup)
     );
-    println!("outcome: {}", result.outcome.name());
+    say!(args.json, "outcome: {}", result.outcome.name());
     if let scenario::Outcome::Diverged { tick, reason } = &result.outcome {
-        println!(
+        say!(
+            args.json,
             "  diverged at t = {:.3} s: {reason}",
             *tick as f64 * setup.scenario().dt
         );
     }
-    println!(
+    say!(
+        args.json,
         "belief MSE per joint: {}",
         result
             .mse_per_joint
@@ -465,12 +515,14 @@ fn run(args: RunArgs) -> Result<(), Failure> {
             .collect::<Vec<_>>()
             .join(", ")
     );
-    println!(
+    say!(
+        args.json,
         "faulty-joint MSE: {} | healthy-joint MSE: {}",
         fmt_opt(result.mse_faulty),
         fmt_opt(result.mse_healthy)
     );
-    println!(
+    say!(
+        args.json,
         "final error per joint (rad): {}",
         result
             .final_error_per_joint
@@ -480,15 +532,17 @@ fn run(args: RunArgs) -> Result<(), Failure> {
             .join(", ")
     );
     match result.detected_at {
-        Some(t) => println!(
+        Some(t) => say!(
+            args.json,
             "detected at {t:.3} s ({}), isolated {}",
             result.detection_kind,
             result.isolated_channel.clone().unwrap_or_default()
         ),
-        None => println!("no detection"),
+        None => say!(args.json, "no detection"),
     }
     for (i, f) in result.faults.iter().enumerate() {
-        println!(
+        say!(
+            args.json,
             "fault {} ({} {} from {} s): {}",
             i + 1,
             f.label,
@@ -507,12 +561,14 @@ fn run(args: RunArgs) -> Result<(), Failure> {
             }
         );
     }
-    println!(
+    say!(
+        args.json,
         "speed: {:.0} ticks/s ({:.1}x real time)",
         result.ticks_per_second(),
         result.ticks_per_second() * setup.scenario().dt
     );
-    println!(
+    say!(
+        args.json,
         "wrote {}/: {}, {}, {}, plots {}, {}, {}, {}",
         dir.display(),
         run_files::TRAJECTORY,
@@ -523,6 +579,9 @@ fn run(args: RunArgs) -> Result<(), Failure> {
         run_files::PLOT_DETECTOR,
         run_files::PLOT_FREE_ENERGY
     );
+    if args.json {
+        print_json_file(&dir.join(run_files::SUMMARY))?;
+    }
     Ok(())
 }
 
@@ -576,8 +635,13 @@ fn table(args: TableArgs) -> Result<(), Failure> {
     staged
         .commit()
         .map_err(|e| report_failure(ReportError::File(e)))?;
-    print!("{}", table_files::table_markdown(&setup, &result));
-    println!(
+    say!(
+        args.json,
+        "{}",
+        table_files::table_markdown(&setup, &result)
+    );
+    say!(
+        args.json,
         "\n{} runs ({} methods x {} seeds) in {:.1} s (GP, calibration and runs) on {} threads; GP {}; wrote {}/table.csv, table.md, table.json, runs.csv",
         methods.len() * seeds.len(),
         methods.len(),
@@ -587,6 +651,9 @@ fn table(args: TableArgs) -> Result<(), Failure> {
         describe_gp(&setup),
         dir.display()
     );
+    if args.json {
+        print_json_file(&dir.join("table.json"))?;
+    }
     Ok(())
 }
 
@@ -730,8 +797,13 @@ fn check_urdf(args: CheckUrdfArgs) -> Result<(), Failure> {
     if let Some(ee) = args.ee.as_deref().filter(|ee| model.link(ee).is_none()) {
         return Err(bad_input(model.unknown_link_error(ee)));
     }
-    println!("arm '{}' from {}", model.name, args.path.display());
-    println!("movable joints: {}", model.joints.len());
+    say!(
+        args.json,
+        "arm '{}' from {}",
+        model.name,
+        args.path.display()
+    );
+    say!(args.json, "movable joints: {}", model.joints.len());
     for (i, j) in model.joints.iter().enumerate() {
         let axis = j.axis.into_inner();
         let limits = match j.limits {
@@ -739,7 +811,8 @@ fn check_urdf(args: CheckUrdfArgs) -> Result<(), Failure> {
             None => "none".into(),
         };
         let effort = j.effort.map_or("none".into(), |e| format!("{e}"));
-        println!(
+        say!(
+            args.json,
             "  {}. {} ({}) parent '{}' child '{}' axis ({}, {}, {}) limits {} effort {} damping {} friction {}",
             i + 1,
             j.name,
@@ -755,25 +828,77 @@ fn check_urdf(args: CheckUrdfArgs) -> Result<(), Failure> {
             j.friction
         );
     }
-    println!("links:");
+    say!(args.json, "links:");
     for l in &model.links {
         let body = &model.bodies[l.body].link;
         if l.has_inertial {
-            println!("  {} mass {} kg (body '{}')", l.name, l.mass, body);
+            say!(
+                args.json,
+                "  {} mass {} kg (body '{}')",
+                l.name,
+                l.mass,
+                body
+            );
         } else {
-            println!("  {} massless frame (body '{}')", l.name, body);
+            say!(args.json, "  {} massless frame (body '{}')", l.name, body);
         }
     }
-    println!("total mass: {} kg", model.total_mass());
+    say!(args.json, "total mass: {} kg", model.total_mass());
     match &args.ee {
-        Some(ee) => println!("end effector: {ee}"),
+        Some(ee) => say!(args.json, "end effector: {ee}"),
         None => match model.link("ee") {
-            Some(_) => println!("end effector: ee (default)"),
-            None => println!("end effector: none named 'ee'; pass --ee LINK"),
+            Some(_) => say!(args.json, "end effector: ee (default)"),
+            None => say!(args.json, "end effector: none named 'ee'; pass --ee LINK"),
         },
     }
     for w in &model.warnings {
-        println!("warning: {w}");
+        say!(args.json, "warning: {w}");
+    }
+    if args.json {
+        let joints: Vec<_> = model
+            .joints
+            .iter()
+            .map(|j| {
+                let axis = j.axis.into_inner();
+                serde_json::json!({
+                    "name": j.name,
+                    "kind": j.kind.name(),
+                    "parent": model.bodies[j.parent_body].link,
+                    "child": model.bodies[j.child_body].link,
+                    "axis": [axis.x, axis.y, axis.z],
+                    "limits": j.limits.map(|(lo, hi)| [lo, hi]),
+                    "effort": j.effort,
+                    "damping": j.damping,
+                    "friction": j.friction,
+                })
+            })
+            .collect();
+        let links: Vec<_> = model
+            .links
+            .iter()
+            .map(|l| {
+                serde_json::json!({
+                    "name": l.name,
+                    "mass": if l.has_inertial { Some(l.mass) } else { None },
+                    "body": model.bodies[l.body].link,
+                })
+            })
+            .collect();
+        let ee = match &args.ee {
+            Some(ee) => Some(ee.as_str()),
+            None => model.link("ee").map(|_| "ee"),
+        };
+        let doc = serde_json::json!({
+            "format_version": 1,
+            "urdf": args.path,
+            "name": model.name,
+            "joints": joints,
+            "links": links,
+            "total_mass": model.total_mass(),
+            "end_effector": ee,
+            "warnings": model.warnings,
+        });
+        println!("{doc}");
     }
     Ok(())
 }
