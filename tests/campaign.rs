@@ -121,6 +121,23 @@ faults = [{ channel = "tach*", kind = "freeze", start = 8.0 }]
     );
 }
 
+/// The bundled campaign files parse and expand to the grids their comments promise.
+#[test]
+fn the_bundled_campaigns_expand_to_their_grids() {
+    let load = |name: &str| -> CampaignConfig {
+        let path = common::repo(&format!("assets/campaigns/{name}"));
+        toml::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+    };
+    let default = load("default.toml");
+    assert_eq!(expand(&default, &default.onsets).len(), 234);
+    assert_eq!(default.arms.len(), 6);
+    let reaching = load("reaching.toml");
+    let cells = expand(&reaching, &reaching.onsets);
+    assert_eq!(cells.len(), 6);
+    assert!(cells.iter().all(|c| c.label == "healthy"));
+    assert_eq!(reaching.reaching.as_ref().unwrap().tasks, 100);
+}
+
 #[test]
 fn merged_shards_equal_the_unsharded_run_byte_for_byte() {
     let tmp = tempfile::tempdir().unwrap();
