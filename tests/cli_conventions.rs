@@ -152,3 +152,101 @@ fn completion_scripts_for_every_shell() {
         .unwrap();
     assert_eq!(bad.status.code(), Some(2));
 }
+
+/// The schema's object for `schema`, following `$ref`s into `$defs`.
+fn resolve<'a>(
+    root: &'a serde_json::Value,
+    schema: &'a serde_json::Value,
+) -> &'a serde_json::Value {
+    match schema.get("$ref").and_then(|r| r.as_str()) {
+        Some(r) => {
+            let name = r.trim_start_matches("#/$defs/");
+            resolve(root, &root["$defs"][name])
+        }
+        None => schema,
+    }
+}
+
+/// Every alternative a schema allows (anyOf / oneOf / allOf members, or itself).
+fn alternatives<'a>(
+    root: &'a serde_json::Value,
+    schema: &'a serde_json::Value,
+) -> Vec<&'a serde_json::Value> {
+    let s = resolve(root, schema);
+    let mut out = vec![s];
+    for key in ["anyOf", "oneOf", "allOf"] {
+        if let Some(list) = s.get(key).and_then(|l| l.as_array()) {
+            for a in list {
+                out.extend(alternatives(root, a));
+            }
+        }
+    }
+    out
+}
+
+/// Checks that every key of `value` is a property the schema names, recursively; returns the
+/// paths of keys it does not know.
+fn unknown_keys(
+    root: &serde_json::Value,
+    schema: &serde_json::Value,
+    value: &toml::Value,
+    path: &str,
+    out: &mut Vec<String>,
+) {
+    let alts = alternatives(root, schema);
+    match value {
+        toml::Value::Table(t) => {
+            for (k, v) in t {
+                let sub: Vec<&serde_json::Value> = alts
+                    .iter()
+                    .filter_map(|a| a.get("properties").and_then(|p| p.get(k)))
+                    .collect();
+                if sub.is_empty() {
+                    out.push(format!("{path}.{k}"));
+                } else {
+                    unknown_keys(root, sub[0], v, &format!("{path}.{k}"), out);
+                }
+            }
+        }
+        toml::Value::Array(items) => {
+            if let Some(item_schema) = alts.iter().find_map(|a| a.get("items")) {
+                for (i, v) in items.iter().enumerate() {
+                    unknown_keys(root, item_schema, v, &format!("{path}[{i}]"), out);
+                }
+            }
+        }
+        _ => {}
+    }
+}
+
+#[test]
+fn the_schema_knows_every_key_of_every_bundled_scenario_and_refuses_others() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = aift(&["schema"], tmp.path());
+    let schema = json_of(&out);
+    assert!(
+        schema["$schema"]
+            .as_str()
+            .unwrap()
+            .contains("json-schema.org")
+    );
+    assert_eq!(schema["additionalProperties"], false);
+    let mut files = 0;
+    for entry in std::fs::read_dir(common::repo("assets/scenarios")).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "toml") {
+            let value: toml::Value =
+                toml::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+            let mut unknown = Vec::new();
+            unknown_keys(&schema, &schema, &value, "", &mut unknown);
+            assert!(unknown.is_empty(), "{}: {unknown:?}", path.display());
+            files += 1;
+        }
+    }
+    assert!(files >= 10);
+    // A key the loader refuses is not in the schema either.
+    let bad: toml::Value = toml::from_str("[robot]\nurdf = \"x\"\nsolver_iteration = 2\n").unwrap();
+    let mut unknown = Vec::new();
+    unknown_keys(&schema, &schema, &bad, "", &mut unknown);
+    assert_eq!(unknown, vec![".robot.solver_iteration".to_string()]);
+}

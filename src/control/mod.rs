@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 pub use pid::{Pid, PidGains};
 
 /// Settings of the control stage.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct ControlConfig {
     pub gains: PidGains,
     /// Finite action gain kappa_u (1/s); absent: u = f* (the authors' kappa_u -> infinity).

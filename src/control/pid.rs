@@ -7,7 +7,7 @@
 use serde::{Deserialize, Serialize};
 
 /// PID gains, one entry per joint.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct PidGains {
     /// Proportional gain (N m / rad).

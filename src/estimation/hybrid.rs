@@ -38,7 +38,9 @@ use crate::gp::GpModel;
 use crate::sensors::{Channel, ChannelLayout};
 
 /// The bank's transition model.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema,
+)]
 #[serde(rename_all = "kebab-case")]
 pub enum BankModel {
     /// Constant velocity with white acceleration noise (no model of the arm).
@@ -49,7 +51,9 @@ pub enum BankModel {
 }
 
 /// How the hybrid sets the camera's precisions.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema,
+)]
 #[serde(rename_all = "kebab-case")]
 pub enum CameraPrecision {
     /// A camera hypothesis in the bank (every output failed together, `camera_broad` times its
@@ -61,7 +65,7 @@ pub enum CameraPrecision {
 }
 
 /// Settings of `hybrid` (the `[hybrid]` section).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct HybridConfig {
     pub bank_model: BankModel,

@@ -23,7 +23,7 @@ use crate::plant::{ArmModel, Chain};
 use crate::sensors::{Channel, ChannelLayout, Readings};
 
 /// Settings of the Kalman-filter baselines (the `[kalman]` section).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct KalmanConfig {
     /// Process noise: the acceleration (rad/s^2) treated as one standard deviation; absent: the

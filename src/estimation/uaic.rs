@@ -31,7 +31,7 @@ use crate::gp::GpModel;
 use crate::sensors::{Channel, ChannelLayout, Readings};
 
 /// How the belief descends the free energy each tick.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "kebab-case")]
 pub enum UpdateScheme {
     /// x = x_hat - eta H^-1 dF/dx at the prediction, H the Gauss-Newton Hessian.
@@ -41,7 +41,9 @@ pub enum UpdateScheme {
 }
 
 /// How the state prior's precision is set.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema,
+)]
 #[serde(rename_all = "kebab-case")]
 pub enum PriorMode {
     /// Fixed diagonal precisions P_mu, P_mu' (the paper's).
@@ -54,7 +56,7 @@ pub enum PriorMode {
 }
 
 /// Which state prediction the prior uses.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "kebab-case")]
 pub enum Prediction {
     /// x_hat = [mu_{k-1} + dt mu'_{k-1}, mu'_{k-1}] (the paper's eq. 4).

@@ -20,7 +20,17 @@ use super::PlantError;
 use super::urdf::{ArmModel, JointKind, ShapeSpec};
 
 /// Which dynamics engine steps the arm.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Clone,
+    Copy,
+    Debug,
+    Default,
+    PartialEq,
+    Eq,
+    serde::Serialize,
+    serde::Deserialize,
+    schemars::JsonSchema,
+)]
 #[serde(rename_all = "kebab-case")]
 pub enum Engine {
     /// rapier3d-f64's multibody (reduced coordinates); `solver_iterations` substeps.

@@ -31,7 +31,17 @@ use nalgebra::{
 use super::urdf::{ArmModel, JointKind};
 
 /// How the articulated engine integrates.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Clone,
+    Copy,
+    Debug,
+    Default,
+    PartialEq,
+    Eq,
+    serde::Serialize,
+    serde::Deserialize,
+    schemars::JsonSchema,
+)]
 #[serde(rename_all = "kebab-case")]
 pub enum Integrator {
     /// Semi-implicit Euler with implicit damping (rapier's map), first order.

@@ -26,7 +26,7 @@ use serde::{Deserialize, Serialize};
 use crate::sensors::{ChannelLayout, SensorGroup};
 
 /// How an alarm is isolated.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "kebab-case")]
 pub enum Isolation {
     /// The channel with the largest normalised residual in the alarmed group.
@@ -36,7 +36,7 @@ pub enum Isolation {
 }
 
 /// The detector's test.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "kebab-case")]
 pub enum DetectorTest {
     /// The ECC paper's per-tick multivariate Chebyshev bound per sensor group.
@@ -51,7 +51,7 @@ pub const MAX_ALARMS: usize = 10_000;
 /// Detector settings: alpha = 0.01 (Chebyshev false-alarm bound), channel isolation, moments
 /// pooled over +-5 ticks around each step, an isolated channel re-admitted after 1000 quiet
 /// ticks.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct DetectorConfig {
     pub alpha: f64,
@@ -120,7 +120,7 @@ impl DetectorConfig {
 }
 
 /// Healthy innovation statistics of one group, per tick.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct GroupCalibration {
     /// The group's short name (`enc`, `tach`, `cam`).
@@ -134,7 +134,7 @@ pub struct GroupCalibration {
 }
 
 /// Healthy residual statistics of a scenario, from `runs` healthy runs.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Calibration {
     /// Fingerprint of the scenario's schedule it was made for.

@@ -77,7 +77,7 @@ pub trait PrecisionMethod: Send {
 }
 
 /// Clamp of every learner, as multiples of the nominal precision.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct PrecisionBounds {
     pub min_ratio: f64,

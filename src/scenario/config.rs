@@ -12,7 +12,7 @@ use crate::sensors::{CameraConfig, ChannelLayout, FaultSpec, SensorConfig};
 
 /// A scenario: the arm, its start and targets, sensors, camera, GP, controller, precision
 /// method, detector and faults, duration, tick and seed.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Scenario {
     /// Short name (used for output folders).
@@ -82,7 +82,7 @@ fn default_seed() -> u64 {
 }
 
 /// The arm.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct RobotConfig {
     /// URDF path, relative to the scenario file.
@@ -143,7 +143,7 @@ fn default_iterations() -> usize {
 }
 
 /// The arm's state at t = 0.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct InitialState {
     pub q: Vec<f64>,
@@ -153,7 +153,7 @@ pub struct InitialState {
 }
 
 /// A set point.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Target {
     pub time: f64,
@@ -161,7 +161,7 @@ pub struct Target {
 }
 
 /// The camera GP: how to get it.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct GpConfig {
     /// Training points.
@@ -194,7 +194,7 @@ impl Default for GpConfig {
 
 /// The `[controller]` section: the u-AIC's belief ([`UaicConfig`]) and the control stage
 /// ([`ControlConfig`]) in one table, as users write it. Defaults are those two structs'.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct ControllerConfig {
     pub update: UpdateScheme,
@@ -301,7 +301,7 @@ impl ControllerConfig {
 }
 
 /// The precision method and its parameters.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct PrecisionConfig {
     pub method: Method,
@@ -348,7 +348,7 @@ impl Default for PrecisionConfig {
 }
 
 /// Detector settings plus an optional calibration file.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct DetectorSettings {
     /// Chebyshev false-alarm bound: alarm when d_M > sqrt(n / alpha).

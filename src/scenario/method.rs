@@ -21,7 +21,19 @@ use crate::precision::{
 use crate::sensors::{ChannelLayout, SensorGroup};
 
 /// A fault-tolerance method.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, PartialOrd, Ord)]
+#[derive(
+    Clone,
+    Copy,
+    Debug,
+    PartialEq,
+    Eq,
+    Hash,
+    Serialize,
+    Deserialize,
+    PartialOrd,
+    Ord,
+    schemars::JsonSchema,
+)]
 #[serde(rename_all = "kebab-case")]
 pub enum Method {
     /// Fixed nominal precisions: no fault tolerance.

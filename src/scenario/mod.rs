@@ -24,6 +24,13 @@ use std::sync::Arc;
 pub use config::{
     ControllerConfig, GpConfig, MAX_TICKS, PrecisionConfig, RobotConfig, Scenario, Target,
 };
+
+/// The scenario file's JSON Schema (draft 2020-12), generated from the same serde types the loader
+/// uses, so editors can validate and complete scenario files (`aift schema`).
+pub fn scenario_schema() -> serde_json::Value {
+    serde_json::to_value(schemars::schema_for!(Scenario)).expect("a schema serialises")
+}
+
 pub use method::Method;
 pub use metrics::{FaultOutcome, RunMetrics, RunResult};
 pub use runner::{

@@ -18,7 +18,9 @@ use serde::{Deserialize, Serialize};
 use crate::plant::Arm;
 
 /// What the camera reports.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize, schemars::JsonSchema,
+)]
 #[serde(rename_all = "kebab-case")]
 pub enum CameraModel {
     /// A pinhole image: two outputs (u, v) in metres at the reference depth, distorted.
@@ -45,7 +47,7 @@ impl CameraModel {
 
 /// How the camera is set up. Defaults follow the paper: sigma 0.01 m, K1 = -1.5e-3, K2 = 5e-6,
 /// K3 = 0, looking at the origin from 3 m along -y with z up.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct CameraConfig {
     /// `pinhole` (two image outputs) or `position` (three world coordinates).

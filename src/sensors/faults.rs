@@ -20,7 +20,7 @@ use serde::{Deserialize, Serialize};
 use super::ChannelLayout;
 
 /// What a fault does to a reading, with its parameters (`kind = "..."` in a file).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
 pub enum FaultKind {
     /// The reading stays at its value at the fault's first tick (the paper's fault).
@@ -92,7 +92,7 @@ impl FaultKind {
 }
 
 /// Which channels a fault hits: one selector or a list (`"enc1"`, `"cam"`, `["enc1", "tach1"]`).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(untagged)]
 pub enum ChannelSelection {
     One(String),
@@ -121,7 +121,7 @@ impl From<&str> for ChannelSelection {
 }
 
 /// A fault as written in a scenario file.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct FaultSpec {
     pub channel: ChannelSelection,
     /// Start time (s).

@@ -36,7 +36,7 @@ pub enum Channel {
 }
 
 /// A group of channels of one kind (the detector works per group).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "kebab-case")]
 pub enum SensorGroup {
     Encoders,
@@ -276,7 +276,7 @@ impl Readings {
 
 /// Noise levels. Defaults are the paper's: 0.001 for encoders and tachometers (rad, rad/s),
 /// the camera as in [`CameraConfig`].
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct SensorConfig {
     /// Encoder noise standard deviation (rad).

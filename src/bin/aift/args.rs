@@ -35,6 +35,8 @@ pub enum Command {
     Campaign(CampaignArgs),
     /// Merge the shards of a campaign into the files of the whole campaign.
     Merge(MergeArgs),
+    /// Print the scenario file's JSON Schema (for editors: validation and completion).
+    Schema,
     /// Print a shell completion script, e.g. `aift completions bash > ~/.local/share/bash-completion/completions/aift`.
     Completions(CompletionsArgs),
 }

@@ -101,6 +101,14 @@ pub fn dispatch(cli: Cli) -> Result<(), Failure> {
         Command::Init(args) => init(args),
         Command::Campaign(args) => campaign(args),
         Command::Merge(args) => merge(args),
+        Command::Schema => {
+            let schema = scenario::scenario_schema();
+            println!(
+                "{}",
+                serde_json::to_string_pretty(&schema).expect("a schema serialises")
+            );
+            Ok(())
+        }
         Command::Completions(args) => {
             use clap::CommandFactory;
             clap_complete::generate(
