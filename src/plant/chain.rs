@@ -113,6 +113,7 @@ pub struct Chain {
     bias: DVector<f64>,
     rhs: DVector<f64>,
     factor: DMatrix<f64>,
+    rk4: Rk4Scratch,
 }
 
 impl Chain {
@@ -164,6 +165,7 @@ impl Chain {
             bias: DVector::zeros(n),
             rhs: DVector::zeros(n),
             factor: DMatrix::zeros(n, n),
+            rk4: Rk4Scratch::default(),
         };
         c.kinematics();
         c
@@ -432,64 +434,80 @@ impl Chain {
         true
     }
 
-    /// qdd = M^-1 (tau - bias - D qd) at (q, qd), into `out`.
+    /// qdd = M^-1 (tau - bias - D qd) at (q, qd) after q changed, into `out`.
     fn acceleration(&mut self, tau: &[f64], g: &Vector3<f64>, out: &mut [f64]) -> bool {
-        let n = self.n_joints();
         self.kinematics();
-        self.dynamics(g);
-        for r in 0..n {
-            self.rhs[r] = tau[r] - self.bias[r] - self.joints[r].damping * self.qd[r];
-        }
-        if !self.solve_damped(0.0) {
-            return false;
-        }
-        out.copy_from_slice(self.rhs.as_slice());
-        true
+        self.forward_dynamics(tau, g, out)
     }
 
     fn rk4(&mut self, tau: &[f64], g: &Vector3<f64>, h: f64) -> bool {
         let n = self.n_joints();
-        let (q0, qd0) = (self.q.clone(), self.qd.clone());
-        let mut kq = [vec![0.0; n], vec![0.0; n], vec![0.0; n], vec![0.0; n]];
-        let mut kv = [vec![0.0; n], vec![0.0; n], vec![0.0; n], vec![0.0; n]];
+        let mut k = std::mem::take(&mut self.rk4);
+        k.resize(n);
+        k.q0.copy_from_slice(&self.q);
+        k.qd0.copy_from_slice(&self.qd);
         let weights = [0.0, 0.5, 0.5, 1.0];
         for stage in 0..4 {
             if stage > 0 {
                 let w = weights[stage] * h;
                 for i in 0..n {
-                    self.q[i] = q0[i] + w * kq[stage - 1][i];
-                    self.qd[i] = qd0[i] + w * kv[stage - 1][i];
+                    self.q[i] = k.q0[i] + w * k.kq[stage - 1][i];
+                    self.qd[i] = k.qd0[i] + w * k.kv[stage - 1][i];
                 }
             }
-            kq[stage].copy_from_slice(&self.qd);
-            let mut acc = std::mem::take(&mut kv[stage]);
-            let ok = self.acceleration(tau, g, &mut acc);
-            kv[stage] = acc;
-            if !ok {
-                self.q = q0;
-                self.qd = qd0;
+            k.kq[stage].copy_from_slice(&self.qd);
+            if !self.acceleration(tau, g, &mut k.kv[stage]) {
+                self.q.copy_from_slice(&k.q0);
+                self.qd.copy_from_slice(&k.qd0);
                 self.kinematics();
+                self.rk4 = k;
                 return false;
             }
         }
+        let (kq, kv) = (&k.kq, &k.kv);
         for i in 0..n {
-            self.q[i] = q0[i] + h / 6.0 * (kq[0][i] + 2.0 * kq[1][i] + 2.0 * kq[2][i] + kq[3][i]);
-            self.qd[i] = qd0[i] + h / 6.0 * (kv[0][i] + 2.0 * kv[1][i] + 2.0 * kv[2][i] + kv[3][i]);
+            self.q[i] = k.q0[i] + h / 6.0 * (kq[0][i] + 2.0 * kq[1][i] + 2.0 * kq[2][i] + kq[3][i]);
+            self.qd[i] =
+                k.qd0[i] + h / 6.0 * (kv[0][i] + 2.0 * kv[1][i] + 2.0 * kv[2][i] + kv[3][i]);
         }
         // Limits and friction as an impulse at the end of the step.
-        let q_end = self.q.clone();
-        self.q = q0.clone();
+        k.q_end.copy_from_slice(&self.q);
+        self.q.copy_from_slice(&k.q0);
         self.kinematics();
         self.dynamics(g);
         self.constraints(h);
-        self.q = q_end;
+        self.q.copy_from_slice(&k.q_end);
         for (i, j) in self.joints.iter().enumerate() {
             if let Some((lo, hi)) = j.limits {
                 self.q[i] = self.q[i].clamp(lo, hi);
             }
         }
         self.kinematics();
+        self.rk4 = k;
         true
+    }
+}
+
+/// RK4's per-step storage, kept between steps: the start state, the four stages' slopes, and q at
+/// the end before the limits act.
+#[derive(Clone, Debug, Default)]
+struct Rk4Scratch {
+    q0: Vec<f64>,
+    qd0: Vec<f64>,
+    kq: [Vec<f64>; 4],
+    kv: [Vec<f64>; 4],
+    q_end: Vec<f64>,
+}
+
+impl Rk4Scratch {
+    fn resize(&mut self, n: usize) {
+        for v in [&mut self.q0, &mut self.qd0, &mut self.q_end]
+            .into_iter()
+            .chain(&mut self.kq)
+            .chain(&mut self.kv)
+        {
+            v.resize(n, 0.0);
+        }
     }
 }
 
