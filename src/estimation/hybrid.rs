@@ -299,29 +299,22 @@ impl Hybrid {
             }
             self.initialised = true;
         } else {
+            // The model's acceleration at the belief, and the per-joint process noise it implies.
             let n = self.layout.n_joints();
-            let has_acc = match &mut self.model {
-                Some(m) => {
-                    let x = self.uaic.belief();
-                    match m.acceleration(&x[..n], &x[n..], input.applied_torques) {
-                        Some(a) => {
-                            self.acc.copy_from_slice(a);
-                            true
-                        }
-                        None => false,
-                    }
-                }
-                None => false,
-            };
-            if has_acc {
+            let x = self.uaic.belief();
+            let has_acc = self
+                .model
+                .as_mut()
+                .and_then(|m| m.acceleration(&x[..n], &x[n..], input.applied_torques))
+                .map(|a| self.acc.copy_from_slice(a))
+                .is_some();
+            let (acc, noise) = if has_acc {
                 for (s, a) in self.noise.iter_mut().zip(&self.acc) {
                     *s = self
                         .config
                         .model_acceleration_noise
                         .max(self.config.model_relative_error * a.abs());
                 }
-            }
-            let (acc, noise) = if has_acc {
                 (Some(self.acc.as_slice()), Some(self.noise.as_slice()))
             } else {
                 (None, None)

@@ -547,8 +547,6 @@ impl Estimator for EkfGate {
         let common = self.config.common_mode > 0 && now && recent >= self.config.common_mode;
         if common {
             self.last_beyond.fill(None);
-        }
-        if common {
             // The fading factor: the covariance grows until the worst channel in use is one
             // standard deviation off; no channel is judged, so none moves towards exclusion.
             let fading = nis_max.max(1.0);
@@ -693,21 +691,26 @@ impl VbAkf {
     fn precision(&self, c: usize) -> f64 {
         (self.alpha[c] / self.beta[c]).clamp(self.min_ratio * self.nominal[c], self.nominal[c])
     }
+
+    /// Each channel's noise variance from the current estimate; infinite for the channels the
+    /// caller leaves out (precision 0).
+    fn fill_variances(&self, precisions: &[f64], out: &mut [f64]) {
+        for (c, v) in out.iter_mut().enumerate() {
+            *v = if precisions[c] <= 0.0 {
+                f64::INFINITY
+            } else {
+                1.0 / self.precision(c)
+            };
+        }
+    }
 }
 
 impl Estimator for VbAkf {
     fn update(&mut self, input: &EstimatorInput<'_>) -> &Estimate {
         let m = self.nominal.len();
         let mut variances = std::mem::take(&mut self.variances);
-        let off = |c: usize| input.precisions[c] <= 0.0;
         if !self.ekf.initialised() {
-            for c in 0..m {
-                variances[c] = if off(c) {
-                    f64::INFINITY
-                } else {
-                    1.0 / self.precision(c)
-                };
-            }
+            self.fill_variances(input.precisions, &mut variances);
             self.ekf.initialise(input.readings, &variances);
         } else {
             predict_with(&mut self.ekf, &mut self.model, input.applied_torques);
@@ -727,23 +730,11 @@ impl Estimator for VbAkf {
         self.ekf.linearise();
         self.x0.copy_from(&self.ekf.x);
         self.p0.copy_from(&self.ekf.p);
-        for c in 0..m {
-            variances[c] = if off(c) {
-                f64::INFINITY
-            } else {
-                1.0 / self.precision(c)
-            };
-        }
+        self.fill_variances(input.precisions, &mut variances);
         self.ekf.record_innovations(input.readings, &variances);
         let mut ll = 0.0;
         for _ in 0..self.iterations {
-            for c in 0..m {
-                variances[c] = if off(c) {
-                    f64::INFINITY
-                } else {
-                    1.0 / self.precision(c)
-                };
-            }
+            self.fill_variances(input.precisions, &mut variances);
             self.ekf.x.copy_from(&self.x0);
             self.ekf.p.copy_from(&self.p0);
             ll = self.ekf.update(input.readings, &variances);
@@ -797,27 +788,12 @@ impl Estimator for VbAkf {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::gp::Hyperparameters;
     use crate::sensors::CameraModel;
     use rand::SeedableRng;
     use rand_distr::{Distribution, Normal};
 
     fn toy_gp() -> Arc<GpModel> {
-        Arc::new(GpModel::assemble(
-            2,
-            2,
-            vec![0.0, 0.0, 1.0, 0.5, -0.5, 1.0],
-            vec![0.3, -0.2, 1.1, 0.4, -0.7, 0.9],
-            vec![0.1, -0.1],
-            Hyperparameters {
-                length_scales: vec![0.8, 1.3],
-                signal_std: 1.5,
-                noise_std: 0.01,
-            },
-            vec![[-1.0, 1.0], [-1.0, 1.0]],
-            0,
-            0.0,
-        ))
+        Arc::new(GpModel::toy())
     }
 
     /// The EKF's innovation covariance S = H P H' + R against a Monte Carlo estimate: a 2-joint

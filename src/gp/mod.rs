@@ -275,12 +275,11 @@ impl GpModel {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn toy() -> GpModel {
-        GpModel::assemble(
+impl GpModel {
+    /// A fixed 3-point, 2-input, 2-output model for unit tests (GP and Kalman filters).
+    #[cfg(test)]
+    pub(crate) fn toy() -> Self {
+        Self::assemble(
             2,
             2,
             vec![0.0, 0.0, 1.0, 0.5, -0.5, 1.0],
@@ -296,10 +295,15 @@ mod tests {
             0.0,
         )
     }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
 
     #[test]
     fn jacobian_matches_central_differences() {
-        let m = toy();
+        let m = GpModel::toy();
         let q = [0.31, -0.47];
         let (mut g, mut jac) = ([0.0; 2], [0.0; 4]);
         m.predict(&q, &mut g, &mut jac);
@@ -353,7 +357,7 @@ mod tests {
 
     #[test]
     fn json_round_trip_predicts_bit_for_bit() {
-        let m = toy();
+        let m = GpModel::toy();
         let back = GpModel::from_json(&m.to_json(), Path::new("toy.json")).unwrap();
         let q = [0.123456789, -0.987654321];
         let (mut a, mut ja, mut b, mut jb) = ([0.0; 2], [0.0; 4], [0.0; 2], [0.0; 4]);
@@ -365,7 +369,7 @@ mod tests {
 
     #[test]
     fn malformed_models_are_refused() {
-        let m = toy();
+        let m = GpModel::toy();
         let bad = m
             .to_json()
             .replacen("\"n_inputs\": 2", "\"n_inputs\": 3", 1);
