@@ -120,7 +120,7 @@ impl DetectorConfig {
 }
 
 /// Healthy innovation statistics of one group, per tick.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct GroupCalibration {
     /// The group's short name (`enc`, `tach`, `cam`).
@@ -134,7 +134,7 @@ pub struct GroupCalibration {
 }
 
 /// Healthy residual statistics of a scenario, from `runs` healthy runs.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Calibration {
     /// Fingerprint of the scenario's schedule it was made for.

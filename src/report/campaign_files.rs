@@ -19,6 +19,8 @@ use crate::scenario::campaign::{
 
 /// The records file of a run or shard.
 pub const RECORDS: &str = "records.json";
+/// The campaign as JSON (what `aift campaign --json` prints).
+pub const CAMPAIGN_JSON: &str = "campaign.json";
 
 /// A CSV field: quoted when it holds a comma, a quote or a newline.
 fn field(s: &str) -> String {
@@ -82,7 +84,7 @@ pub fn write_campaign(
     )?;
     let j = serde_json::to_string_pretty(&json_doc(campaign, records, &cells, &methods))
         .expect("serialisable");
-    write_atomic(&dir.join("campaign.json"), j.as_bytes())?;
+    write_atomic(&dir.join(CAMPAIGN_JSON), j.as_bytes())?;
     if !records.reaching.is_empty() {
         write_atomic(
             &dir.join("reaching.csv"),

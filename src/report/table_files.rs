@@ -11,13 +11,15 @@ use crate::scenario::{Method, RunSetup};
 
 /// Version of table.json's layout.
 pub const TABLE_FORMAT: u32 = 2;
+/// The table as JSON (what `aift table --json` prints).
+pub const TABLE_JSON: &str = "table.json";
 
 /// Writes the four table files into `dir`.
 pub fn write_table(dir: &Path, setup: &RunSetup, table: &Table) -> Result<(), ReportError> {
     write_atomic(&dir.join("runs.csv"), runs_csv(table).as_bytes())?;
     write_atomic(&dir.join("table.csv"), table_csv(table).as_bytes())?;
     let json = serde_json::to_string_pretty(&table_json(setup, table)).expect("serialisable");
-    write_atomic(&dir.join("table.json"), json.as_bytes())?;
+    write_atomic(&dir.join(TABLE_JSON), json.as_bytes())?;
     write_atomic(
         &dir.join("table.md"),
         table_markdown(setup, table).as_bytes(),

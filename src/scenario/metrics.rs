@@ -167,7 +167,7 @@ impl RunMetrics {
         let acting: Vec<Fault> = setup
             .faults
             .iter()
-            .filter(|f| f.start_tick(dt) < ticks)
+            .filter(|f| f.acts_within(ticks, dt))
             .cloned()
             .collect();
         let mut faulty_channels: Vec<usize> = acting

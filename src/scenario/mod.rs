@@ -24,13 +24,6 @@ use std::sync::Arc;
 pub use config::{
     ControllerConfig, GpConfig, MAX_TICKS, PrecisionConfig, RobotConfig, Scenario, Target,
 };
-
-/// The scenario file's JSON Schema (draft 2020-12), generated from the same serde types the loader
-/// uses, so editors can validate and complete scenario files (`aift schema`).
-pub fn scenario_schema() -> serde_json::Value {
-    serde_json::to_value(schemars::schema_for!(Scenario)).expect("a schema serialises")
-}
-
 pub use method::Method;
 pub use metrics::{FaultOutcome, RunMetrics, RunResult};
 pub use runner::{
@@ -306,9 +299,16 @@ fn apply_override(table: &mut toml::Table, item: &str) -> Result<String, Scenari
     Ok(key.to_string())
 }
 
+/// The scenario file's JSON Schema (draft 2020-12), generated from the same serde types the loader
+/// uses, so editors can validate and complete scenario files (`aift schema`).
+pub fn scenario_schema() -> serde_json::Value {
+    serde_json::to_value(schemars::schema_for!(Scenario)).expect("a schema serialises")
+}
+
 /// Targets and faults that start at or after the run's end: legitimate (a run shortened with
-/// `--set duration=...`) but they never act; the metrics leave such faults out.
-fn late_settings(sc: &Scenario) -> Vec<String> {
+/// `--set duration=...`) but they never act; the metrics leave such faults out by the same test
+/// ([`Fault::acts_within`]).
+fn late_settings(sc: &Scenario, faults: &[Fault]) -> Vec<String> {
     let end = sc.duration;
     let mut out = Vec::new();
     for (i, t) in sc.targets.iter().enumerate() {
@@ -319,8 +319,8 @@ fn late_settings(sc: &Scenario) -> Vec<String> {
             ));
         }
     }
-    for (i, f) in sc.faults.iter().enumerate() {
-        if f.start >= end {
+    for (i, f) in faults.iter().enumerate() {
+        if !f.acts_within(sc.ticks(), sc.dt) {
             out.push(format!(
                 "`faults[{i}].start` {} s is not before the run's end ({end} s): it never acts \
                  and is left out of the faulty joints and detections",
@@ -402,7 +402,7 @@ impl RunSetup {
                 source: Box::new(model.unknown_link_error(&sc.robot.ee_link)),
             });
         }
-        let faults = sc
+        let faults: Vec<Fault> = sc
             .faults
             .iter()
             .map(|f| f.to_fault(&layout).expect("validated"))
@@ -439,7 +439,7 @@ impl RunSetup {
                 )
             }
         };
-        let warnings = late_settings(&loaded.scenario);
+        let warnings = late_settings(&loaded.scenario, &faults);
         Ok(Self {
             model: Arc::new(model),
             layout,

@@ -207,6 +207,11 @@ impl Fault {
         tick_at(self.start, dt)
     }
 
+    /// Whether the fault acts at all in a run of `ticks` ticks (it starts before the end).
+    pub fn acts_within(&self, ticks: u64, dt: f64) -> bool {
+        self.start_tick(dt) < ticks
+    }
+
     /// First tick the fault no longer acts at (`None`: never ends).
     pub fn end_tick(&self, dt: f64) -> Option<u64> {
         self.end.map(|e| tick_at(e, dt))

@@ -248,7 +248,7 @@ fn campaign(args: CampaignArgs) -> Result<(), Failure> {
     );
     if args.json {
         if shard == Shard::WHOLE {
-            print_json_file(&dir.join("campaign.json"))?;
+            print_json_file(&dir.join(report::campaign_files::CAMPAIGN_JSON))?;
         } else {
             let doc = serde_json::json!({
                 "format_version": aift::scenario::campaign::CAMPAIGN_FORMAT,
@@ -660,7 +660,7 @@ fn table(args: TableArgs) -> Result<(), Failure> {
         dir.display()
     );
     if args.json {
-        print_json_file(&dir.join("table.json"))?;
+        print_json_file(&dir.join(table_files::TABLE_JSON))?;
     }
     Ok(())
 }
