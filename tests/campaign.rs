@@ -47,21 +47,6 @@ calibration_runs = 4
     path
 }
 
-fn aift(args: &[&str], dir: &Path) -> std::process::Output {
-    let out = Command::new(env!("CARGO_BIN_EXE_aift"))
-        .args(args)
-        .current_dir(dir)
-        .env("AIFT_CACHE_DIR", "off")
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    out
-}
-
 #[test]
 fn the_grid_expands_as_the_file_says() {
     let text = r#"
@@ -143,9 +128,9 @@ fn merged_shards_equal_the_unsharded_run_byte_for_byte() {
     let tmp = tempfile::tempdir().unwrap();
     let file = small_campaign(tmp.path());
     let file = file.to_str().unwrap();
-    aift(&["campaign", file, "--out", "whole"], tmp.path());
+    common::aift_ok(&["campaign", file, "--out", "whole"], tmp.path());
     for k in 1..=3 {
-        aift(
+        common::aift_ok(
             &[
                 "campaign",
                 file,
@@ -157,7 +142,7 @@ fn merged_shards_equal_the_unsharded_run_byte_for_byte() {
             tmp.path(),
         );
     }
-    aift(&["merge", "s1", "s2", "s3", "--out", "merged"], tmp.path());
+    common::aift_ok(&["merge", "s1", "s2", "s3", "--out", "merged"], tmp.path());
     let whole = tmp.path().join("whole");
     let merged = tmp.path().join("merged");
     let mut names: Vec<String> = std::fs::read_dir(&whole)

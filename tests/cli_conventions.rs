@@ -7,20 +7,7 @@ mod common;
 use std::path::Path;
 use std::process::{Command, Output};
 
-fn aift(args: &[&str], dir: &Path) -> Output {
-    let out = Command::new(env!("CARGO_BIN_EXE_aift"))
-        .args(args)
-        .current_dir(dir)
-        .env("AIFT_CACHE_DIR", "off")
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    out
-}
+use common::aift_ok as aift;
 
 /// stdout parsed as exactly one JSON document.
 fn json_of(out: &Output) -> serde_json::Value {
@@ -97,28 +84,7 @@ fn campaign_json_whole_and_sharded() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path();
     let file = dir.join("tiny.toml");
-    std::fs::write(
-        &file,
-        format!(
-            r#"
-name = "tiny"
-seeds = 1
-methods = ["no-ft", "oracle"]
-set = ["robot.engine=\"articulated\"", "duration=9.0"]
-channels = ["enc*"]
-
-[[arms]]
-name = "paper"
-scenario = "{}"
-
-[[kinds]]
-kind = "freeze"
-onsets = ["moving"]
-"#,
-            common::repo("assets/scenarios/paper_healthy.toml").display()
-        ),
-    )
-    .unwrap();
+    std::fs::write(&file, common::tiny_campaign("tiny", "")).unwrap();
     let file = file.to_str().unwrap();
     let out = aift(&["campaign", file, "--out", "c", "--json"], dir);
     let doc = json_of(&out);

@@ -348,31 +348,10 @@ fn simulation_version(path: &Path) -> u64 {
 /// A campaign folder, its version in the campaign's name.
 fn campaign_cmd(out: &Path, version: u64, force: bool) -> Command {
     let file = out.with_file_name(format!("c{version}.toml"));
+    let reaching = "\n[reaching]\ntasks = 1\nduration = 1.0\ncalibration_runs = 2\n";
     std::fs::write(
         &file,
-        format!(
-            r#"
-name = "v{version}"
-seeds = 1
-methods = ["no-ft", "oracle"]
-set = ["robot.engine=\"articulated\"", "duration=9.0"]
-channels = ["enc*"]
-
-[[arms]]
-name = "paper"
-scenario = "{}"
-
-[[kinds]]
-kind = "freeze"
-onsets = ["moving"]
-
-[reaching]
-tasks = 1
-duration = 1.0
-calibration_runs = 2
-"#,
-            common::repo("assets/scenarios/paper_healthy.toml").display()
-        ),
+        common::tiny_campaign(&format!("v{version}"), reaching),
     )
     .unwrap();
     let mut c = aift();

@@ -178,3 +178,42 @@ pub fn min_between(
         .map(|r| r[c])
         .fold(f64::INFINITY, f64::min)
 }
+
+/// Runs the `aift` binary in `dir` (calibration cache off) and asserts it succeeded.
+pub fn aift_ok(args: &[&str], dir: &std::path::Path) -> std::process::Output {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_aift"))
+        .args(args)
+        .current_dir(dir)
+        .env("AIFT_CACHE_DIR", "off")
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
+/// A one-cell campaign on the paper arm (no-ft and the oracle, an encoder freeze while moving,
+/// 9 s on the articulated engine), named `name`, with `extra` TOML appended.
+pub fn tiny_campaign(name: &str, extra: &str) -> String {
+    format!(
+        r#"
+name = "{name}"
+seeds = 1
+methods = ["no-ft", "oracle"]
+set = ["robot.engine=\"articulated\"", "duration=9.0"]
+channels = ["enc*"]
+
+[[arms]]
+name = "paper"
+scenario = "{}"
+
+[[kinds]]
+kind = "freeze"
+onsets = ["moving"]
+{extra}"#,
+        repo("assets/scenarios/paper_healthy.toml").display()
+    )
+}
