@@ -15,3 +15,15 @@ pub mod precision;
 pub mod report;
 pub mod scenario;
 pub mod sensors;
+
+/// An error and its sources joined by `: `, as the CLI prints them (anyhow's `{:#}`).
+pub fn error_chain(error: &dyn std::error::Error) -> String {
+    let mut text = error.to_string();
+    let mut source = error.source();
+    while let Some(e) = source {
+        text.push_str(": ");
+        text.push_str(&e.to_string());
+        source = e.source();
+    }
+    text
+}

@@ -82,7 +82,7 @@ pub fn write_campaign(
         &dir.join("campaign.md"),
         markdown(campaign, records, &cells, &methods).as_bytes(),
     )?;
-    let j = serde_json::to_string_pretty(&json_doc(campaign, records, &cells, &methods))
+    let j = serde_json::to_string_pretty(&campaign_json(campaign, records, &cells, &methods))
         .expect("serialisable");
     write_atomic(&dir.join(CAMPAIGN_JSON), j.as_bytes())?;
     if !records.reaching.is_empty() {
@@ -324,7 +324,7 @@ fn reaching_csv(campaign: &Campaign, records: &CampaignRecords) -> String {
     out
 }
 
-fn json_doc(
+pub fn campaign_json(
     campaign: &Campaign,
     records: &CampaignRecords,
     cells: &[CellSummary],

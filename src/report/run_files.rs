@@ -11,8 +11,8 @@ use super::{ReportError, plots, write_atomic};
 use crate::fsio::{self, Staged};
 use crate::precision::Calibration;
 use crate::scenario::{
-    self, Method, Observers, Outcome, RunResult, RunSetup, TrajectoryRecorder, TrajectorySchema,
-    TrajectoryWriter,
+    self, Method, Observers, Outcome, RunResult, RunSetup, ScenarioError, TrajectoryColumns,
+    TrajectoryRecorder, TrajectorySchema, TrajectoryWriter,
 };
 
 /// Names of the files a run writes.
@@ -168,6 +168,25 @@ pub fn run_into(
     seed: u64,
     calibration: Option<&Calibration>,
 ) -> Result<RunResult, ReportError> {
+    run_into_with(
+        staged,
+        setup,
+        method,
+        seed,
+        calibration,
+        &mut scenario::NoObserver,
+    )
+}
+
+/// [`run_into`], with one more observer of the caller's watching the run.
+pub fn run_into_with(
+    staged: Staged,
+    setup: &RunSetup,
+    method: Method,
+    seed: u64,
+    calibration: Option<&Calibration>,
+    extra: &mut dyn scenario::Observer,
+) -> Result<RunResult, ReportError> {
     let dir = staged.path().to_path_buf();
     let path = dir.join(TRAJECTORY);
     let file = std::fs::File::create(&path).map_err(|source| fsio::FsError::Write {
@@ -185,7 +204,7 @@ pub fn run_into(
         method,
         seed,
         calibration,
-        &mut Observers(vec![&mut writer, &mut plot_rows]),
+        &mut Observers(vec![&mut writer, &mut plot_rows, extra]),
     )?;
     let write_err = |source| fsio::FsError::Write {
         path: path.clone(),
@@ -199,4 +218,26 @@ pub fn run_into(
     write_run(&dir, setup, method, &result, &plot_rows, calibration)?;
     staged.commit()?;
     Ok(result)
+}
+
+/// Runs `method` with `seed` without touching disk: the result, its summary (as summary.json
+/// has it) and the whole trajectory (every `record_every`-th tick, as trajectory.csv has it).
+/// The trajectory's size is checked before the run starts.
+pub fn run_in_memory(
+    setup: &RunSetup,
+    method: Method,
+    seed: u64,
+    calibration: Option<&Calibration>,
+) -> Result<(RunResult, serde_json::Value, TrajectoryColumns), ScenarioError> {
+    let sc = setup.scenario();
+    let mut columns = TrajectoryColumns::new(&setup.layout, sc.ticks(), sc.record_every).map_err(
+        |message| ScenarioError::Invalid {
+            path: setup.loaded.path.clone(),
+            field: "record_every".into(),
+            message,
+        },
+    )?;
+    let result = scenario::run(setup, method, seed, calibration, &mut columns)?;
+    let summary = summary_json(setup, &result);
+    Ok((result, summary, columns))
 }

@@ -179,3 +179,64 @@ pub fn cached_calibration(
     }
     Ok((cal, false))
 }
+
+/// Where a detector calibration came from (for the messages of the CLI and Python).
+#[derive(Clone, Debug, PartialEq)]
+pub enum CalibrationOrigin {
+    /// A file given by the caller or named by the scenario.
+    File(std::path::PathBuf),
+    /// Read from the cache folder.
+    Cached(std::path::PathBuf),
+    /// Computed now (and stored in the cache folder, when there is one).
+    Computed { seconds: f64 },
+}
+
+/// The calibration the methods need, if any of them runs a detector: the file `explicit`, else
+/// the scenario's `detector.calibration`, else `detector.calibration_runs` healthy runs computed
+/// on the fly (through the cache in `cache_dir`). Every path to it gives the same bits.
+pub fn calibration_for(
+    setup: &RunSetup,
+    methods: &[Method],
+    explicit: Option<&std::path::Path>,
+    cache_dir: Option<&std::path::Path>,
+) -> Result<Option<(Calibration, CalibrationOrigin)>, ScenarioError> {
+    if !methods.iter().any(|m| m.needs_detector()) {
+        return Ok(None);
+    }
+    let path = explicit.map(std::path::Path::to_path_buf).or_else(|| {
+        setup
+            .scenario()
+            .detector
+            .calibration
+            .as_ref()
+            .map(|rel| setup.loaded.resolve(rel))
+    });
+    if let Some(path) = path {
+        let cal = load_calibration(setup, &path)?;
+        return Ok(Some((cal, CalibrationOrigin::File(path))));
+    }
+    let runs = setup.scenario().detector.calibration_runs;
+    let start = std::time::Instant::now();
+    let (cal, cached) = cached_calibration(setup, runs, cache_dir)?;
+    let origin = match (cached, cache_dir) {
+        (true, Some(dir)) => CalibrationOrigin::Cached(dir.to_path_buf()),
+        _ => CalibrationOrigin::Computed {
+            seconds: start.elapsed().as_secs_f64(),
+        },
+    };
+    Ok(Some((cal, origin)))
+}
+
+/// Where on-the-fly calibrations are cached: `$AIFT_CACHE_DIR` (`off` disables the cache),
+/// else `$XDG_CACHE_HOME/aift`, else `$HOME/.cache/aift`.
+pub fn default_cache_dir() -> Option<std::path::PathBuf> {
+    use std::path::PathBuf;
+    match std::env::var_os("AIFT_CACHE_DIR") {
+        Some(v) if v == "off" => None,
+        Some(v) => Some(PathBuf::from(v)),
+        None => std::env::var_os("XDG_CACHE_HOME")
+            .map(PathBuf::from)
+            .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".cache")))
+            .map(|d| d.join("aift")),
+    }
+}

@@ -309,6 +309,27 @@ pub struct CampaignConfig {
     pub reaching: Option<ReachingConfig>,
 }
 
+impl CampaignConfig {
+    /// Reads a campaign file (errors name the file and the key).
+    pub fn load(path: &Path) -> Result<Self, ScenarioError> {
+        let text = fsio::read_text(path, fsio::MAX_SCENARIO_BYTES)?;
+        let parse = |message: String| ScenarioError::Parse {
+            path: path.to_path_buf(),
+            message,
+        };
+        let de = toml::Deserializer::parse(&text).map_err(|e| parse(e.to_string()))?;
+        serde_path_to_error::deserialize(de).map_err(|e| {
+            let key = e.path().to_string();
+            parse(format!("`{key}`: {}", e.into_inner()))
+        })
+    }
+}
+
+/// The default campaign of the source tree (`assets/campaigns/default.toml`).
+pub fn bundled_campaign_path() -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/campaigns/default.toml")
+}
+
 fn default_channels() -> Vec<String> {
     vec!["enc*".into(), "tach*".into(), "cam".into()]
 }

@@ -29,7 +29,7 @@ pub use metrics::{FaultOutcome, RunMetrics, RunResult};
 pub use runner::{
     NoObserver, Observer, Observers, Outcome, Simulation, TickRecord, run, run_parts,
 };
-pub use trajectory::{TrajectoryRecorder, TrajectorySchema, TrajectoryWriter};
+pub use trajectory::{TrajectoryColumns, TrajectoryRecorder, TrajectorySchema, TrajectoryWriter};
 
 use crate::fsio::{self, FsError};
 use crate::gp::{self, GpError, GpModel};
@@ -71,6 +71,39 @@ pub enum ScenarioError {
     Calibration { path: PathBuf, message: String },
 }
 
+impl ScenarioError {
+    /// The override (`KEY=VALUE`) that set the key this error is about, if one did: callers
+    /// put it in front of the message (`--set KEY=VALUE: ...`).
+    pub fn blamed_override<'a>(&self, overrides: &'a [String]) -> Option<&'a str> {
+        let field = match self {
+            ScenarioError::Invalid { field, .. } => field.as_str(),
+            ScenarioError::Robot { field, .. } => field,
+            _ => return None,
+        };
+        overrides
+            .iter()
+            .find(|o| {
+                let key = o.split_once('=').map_or(o.as_str(), |(k, _)| k.trim());
+                field == key
+                    || field.starts_with(&format!("{key}."))
+                    || field.starts_with(&format!("{key}["))
+                    || key.starts_with(&format!("{field}."))
+                    || key.starts_with(&format!("{field}["))
+            })
+            .map(String::as_str)
+    }
+
+    /// The message as the CLI prints it (after `error: `): this error and its sources, joined
+    /// by `: `, with the override that set the offending key in front.
+    pub fn message(&self, overrides: &[String]) -> String {
+        let chain = crate::error_chain(self);
+        match self.blamed_override(overrides) {
+            Some(o) => format!("--set {o}: {chain}"),
+            None => chain,
+        }
+    }
+}
+
 /// The default scenario and its URDF, embedded so that `aift run` works from any folder.
 pub const DEFAULT_SCENARIO_NAME: &str = "paper_encoder_freeze.toml";
 const DEFAULT_SCENARIO: &str = include_str!("../../assets/scenarios/paper_encoder_freeze.toml");
@@ -102,6 +135,32 @@ impl LoadedScenario {
                     .map(Path::to_path_buf)
                     .unwrap_or_else(|| PathBuf::from(".")),
             ),
+        })
+    }
+
+    /// Scenario TOML text, with overrides; `label` names it in messages and relative paths
+    /// resolve against `base_dir`.
+    pub fn from_text(
+        text: &str,
+        label: &Path,
+        base_dir: &Path,
+        overrides: &[String],
+    ) -> Result<Self, ScenarioError> {
+        if text.len() as u64 > fsio::MAX_SCENARIO_BYTES {
+            return Err(ScenarioError::Parse {
+                path: label.to_path_buf(),
+                message: format!(
+                    "{} bytes, more than the {} a scenario may have",
+                    text.len(),
+                    fsio::MAX_SCENARIO_BYTES
+                ),
+            });
+        }
+        let scenario = parse_scenario(text, label, overrides)?;
+        Ok(Self {
+            scenario,
+            path: label.to_path_buf(),
+            base_dir: Some(base_dir.to_path_buf()),
         })
     }
 

@@ -296,6 +296,74 @@ impl Observer for TrajectoryRecorder {
     }
 }
 
+/// Most values a [`TrajectoryColumns`] may hold: 2^27 numbers, 1 GiB.
+pub const MAX_IN_MEMORY_VALUES: u64 = 1 << 27;
+
+/// A whole trajectory in memory, column by column (every `every`-th tick, as the CSV file has
+/// it): what the Python package hands to numpy without touching disk. Its size is checked
+/// before the run ([`TrajectoryColumns::new`]), so it never grows past
+/// [`MAX_IN_MEMORY_VALUES`].
+#[derive(Clone, Debug)]
+pub struct TrajectoryColumns {
+    schema: TrajectorySchema,
+    every: u64,
+    columns: Vec<Vec<f64>>,
+    row: Vec<f64>,
+}
+
+impl TrajectoryColumns {
+    /// Room for `ticks` ticks recorded every `every`-th; an error message when that would pass
+    /// [`MAX_IN_MEMORY_VALUES`].
+    pub fn new(layout: &ChannelLayout, ticks: u64, every: u64) -> Result<Self, String> {
+        let schema = TrajectorySchema::new(layout);
+        let every = every.max(1);
+        let rows = ticks.div_ceil(every);
+        let values = rows.saturating_mul(schema.len() as u64);
+        if values > MAX_IN_MEMORY_VALUES {
+            return Err(format!(
+                "the trajectory would hold {values} numbers in memory ({rows} rows x {} \
+                 columns), more than {MAX_IN_MEMORY_VALUES}; raise `record_every` or write it \
+                 to a folder",
+                schema.len()
+            ));
+        }
+        let columns = (0..schema.len())
+            .map(|_| Vec::with_capacity(rows as usize))
+            .collect();
+        Ok(Self {
+            row: Vec::with_capacity(schema.len()),
+            schema,
+            every,
+            columns,
+        })
+    }
+
+    pub fn names(&self) -> &[String] {
+        self.schema.columns()
+    }
+
+    /// The values of every column, in the order of [`Self::names`].
+    pub fn columns(&self) -> &[Vec<f64>] {
+        &self.columns
+    }
+
+    pub fn rows(&self) -> usize {
+        self.columns.first().map_or(0, Vec::len)
+    }
+}
+
+impl Observer for TrajectoryColumns {
+    fn on_tick(&mut self, r: &TickRecord<'_>) {
+        if !r.tick.is_multiple_of(self.every) {
+            return;
+        }
+        self.schema.row(r, &mut self.row);
+        for (column, v) in self.columns.iter_mut().zip(&self.row) {
+            column.push(*v);
+        }
+    }
+}
+
 #[cfg(test)]
 mod format_tests {
     use super::*;

@@ -124,7 +124,7 @@ pub fn dispatch(cli: Cli) -> Result<(), Failure> {
 
 /// The bundled default campaign, where this build of aift finds its repository.
 fn default_campaign_path() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("assets/campaigns/default.toml")
+    aift::scenario::campaign::bundled_campaign_path()
 }
 
 fn campaign(args: CampaignArgs) -> Result<(), Failure> {
@@ -142,15 +142,8 @@ fn campaign(args: CampaignArgs) -> Result<(), Failure> {
         None => Shard::WHOLE,
     };
     // Options that change the campaign's definition go into its configuration (and fingerprint).
-    let text =
-        aift::fsio::read_text(&path, aift::fsio::MAX_SCENARIO_BYTES).map_err(file_failure)?;
-    let de = toml::Deserializer::parse(&text)
-        .map_err(|e| bad_input(anyhow!("{}: {e}", path.display())))?;
-    let mut config: aift::scenario::campaign::CampaignConfig = serde_path_to_error::deserialize(de)
-        .map_err(|e| {
-            let key = e.path().to_string();
-            bad_input(anyhow!("{}: `{key}`: {}", path.display(), e.into_inner()))
-        })?;
+    let mut config =
+        aift::scenario::campaign::CampaignConfig::load(&path).map_err(bad_input)?;
     if let Some(s) = args.seeds {
         config.seeds = s;
     }
@@ -377,23 +370,11 @@ fn load(args: &ScenarioArgs) -> Result<LoadedScenario, Failure> {
 
 /// A scenario error, exit 2; when the offending key was given by `--set`, the message says so.
 fn scenario_failure(error: aift::scenario::ScenarioError, overrides: &[String]) -> Failure {
-    let field = match &error {
-        aift::scenario::ScenarioError::Invalid { field, .. } => Some(field.as_str()),
-        aift::scenario::ScenarioError::Robot { field, .. } => Some(*field),
-        _ => None,
-    };
-    let from_set = field.and_then(|field| {
-        overrides.iter().find(|o| {
-            let key = o.split_once('=').map_or(o.as_str(), |(k, _)| k.trim());
-            field == key
-                || field.starts_with(&format!("{key}."))
-                || field.starts_with(&format!("{key}["))
-                || key.starts_with(&format!("{field}."))
-                || key.starts_with(&format!("{field}["))
-        })
-    });
-    match from_set {
-        Some(o) => bad_input(anyhow::Error::new(error).context(format!("--set {o}"))),
+    match error.blamed_override(overrides) {
+        Some(o) => {
+            let o = o.to_string();
+            bad_input(anyhow::Error::new(error).context(format!("--set {o}")))
+        }
         None => bad_input(error),
     }
 }
@@ -415,56 +396,34 @@ fn parse_method(name: &str) -> Result<Method, Failure> {
         .map_err(|e| bad_input(anyhow!("--method: {e}")))
 }
 
-/// Where on-the-fly calibrations are cached: `$AIFT_CACHE_DIR` (`off` disables the cache),
-/// else `$XDG_CACHE_HOME/aift`, else `$HOME/.cache/aift`.
 fn cache_dir() -> Option<PathBuf> {
-    match std::env::var_os("AIFT_CACHE_DIR") {
-        Some(v) if v == "off" => None,
-        Some(v) => Some(PathBuf::from(v)),
-        None => std::env::var_os("XDG_CACHE_HOME")
-            .map(PathBuf::from)
-            .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".cache")))
-            .map(|d| d.join("aift")),
-    }
+    calibrate::default_cache_dir()
 }
 
-/// The detector calibration a method needs: --calib, the scenario's file, or on the fly.
+/// The detector calibration the methods need: --calib, the scenario's file, or on the fly.
 fn calibration_for(
     setup: &RunSetup,
     methods: &[Method],
     calib: Option<&PathBuf>,
 ) -> Result<Option<Arc<Calibration>>, Failure> {
-    if !methods.iter().any(|m| m.needs_detector()) {
-        return Ok(None);
-    }
-    if let Some(path) = calib {
-        return calibrate::load_calibration(setup, path)
-            .map(|c| Some(Arc::new(c)))
-            .map_err(bad_input);
-    }
-    if let Some(rel) = &setup.scenario().detector.calibration {
-        let path = setup.loaded.resolve(rel);
-        return calibrate::load_calibration(setup, &path)
-            .map(|c| Some(Arc::new(c)))
-            .map_err(bad_input);
-    }
-    let runs = setup.scenario().detector.calibration_runs;
-    let start = std::time::Instant::now();
     let dir = cache_dir();
-    let (cal, cached) =
-        calibrate::cached_calibration(setup, runs, dir.as_deref()).map_err(bad_input)?;
-    if cached {
-        eprintln!(
-            "detector calibration ({runs} healthy runs) read from the cache in {}",
-            dir.as_deref().unwrap_or(Path::new("?")).display()
-        );
-    } else {
-        eprintln!(
-            "calibrated the detector on {runs} healthy runs in {:.1} s",
-            start.elapsed().as_secs_f64()
-        );
-    }
-    Ok(Some(Arc::new(cal)))
+    let found =
+        calibrate::calibration_for(setup, methods, calib.map(PathBuf::as_path), dir.as_deref())
+            .map_err(bad_input)?;
+    let runs = setup.scenario().detector.calibration_runs;
+    Ok(found.map(|(cal, origin)| {
+        match origin {
+            calibrate::CalibrationOrigin::File(_) => {}
+            calibrate::CalibrationOrigin::Cached(dir) => eprintln!(
+                "detector calibration ({runs} healthy runs) read from the cache in {}",
+                dir.display()
+            ),
+            calibrate::CalibrationOrigin::Computed { seconds } => {
+                eprintln!("calibrated the detector on {runs} healthy runs in {seconds:.1} s")
+            }
+        }
+        Arc::new(cal)
+    }))
 }
 
 fn describe_gp(setup: &RunSetup) -> String {

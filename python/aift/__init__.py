@@ -1,0 +1,235 @@
+"""aift from Python: fault-tolerant control of robot arms with active inference.
+
+The library, not the CLI: scenarios, runs, tables, campaigns and a step API, computed by the same
+Rust code as the ``aift`` command, so the numbers agree bit for bit.
+
+    import aift
+    sc = aift.Scenario.default().set("faults[0].start", 9.0)
+    r = aift.run(sc, method="pl-always", seed=1)
+    r.summary["mse_faulty"], r.trajectory["mu1"]
+
+Errors arrive as :class:`BadInput` (the CLI's exit code 2) or :class:`InternalError` (exit 1),
+with the CLI's message. Long calls release the GIL.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from typing import Dict, Iterable, List, Optional, Sequence
+
+import numpy as np
+
+from . import _aift
+from ._aift import AiftError, BadInput, InternalError, Scenario, __version__
+
+__all__ = [
+    "AiftError",
+    "BadInput",
+    "InternalError",
+    "Scenario",
+    "Sim",
+    "Trajectory",
+    "RunResult",
+    "Rows",
+    "run",
+    "table",
+    "campaign",
+    "methods",
+    "schema",
+    "__version__",
+]
+
+
+def _path(p):
+    return None if p is None else os.fspath(p)
+
+
+class Trajectory:
+    """A run's trajectory: one float64 numpy array per column (``t``, ``q1``, ``mu1``, ...,
+    ``y_enc1``, ``precision_enc1``, ``F``, ...), as trajectory.csv has them."""
+
+    def __init__(self, names: List[str], data: bytes):
+        self.columns: List[str] = list(names)
+        n = len(self.columns)
+        values = np.frombuffer(data, dtype="<f8")
+        rows = values.size // n if n else 0
+        self._matrix = values.reshape(n, rows).copy()
+        self._matrix.setflags(write=False)
+        self._index = {c: i for i, c in enumerate(self.columns)}
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        try:
+            return self._matrix[self._index[name]]
+        except KeyError:
+            raise KeyError(f"no column {name!r} (columns: {', '.join(self.columns)})") from None
+
+    def __contains__(self, name: str) -> bool:
+        return name in self._index
+
+    def __iter__(self):
+        return iter(self.columns)
+
+    def __len__(self) -> int:
+        """Rows (recorded ticks)."""
+        return self._matrix.shape[1]
+
+    def keys(self):
+        return list(self.columns)
+
+    def as_dict(self) -> Dict[str, np.ndarray]:
+        return {c: self[c] for c in self.columns}
+
+    def to_numpy(self) -> np.ndarray:
+        """Rows by columns, as the CSV file."""
+        return self._matrix.T.copy()
+
+    def to_pandas(self):
+        """A pandas DataFrame (needs pandas)."""
+        import pandas as pd
+
+        return pd.DataFrame(self.as_dict(), columns=self.columns)
+
+    def __repr__(self) -> str:
+        return f"Trajectory({len(self)} rows x {len(self.columns)} columns)"
+
+
+class RunResult:
+    """What :func:`run` returns: ``summary`` (the dict summary.json holds), ``trajectory``
+    (:class:`Trajectory`) and ``out`` (the run folder, when one was written)."""
+
+    def __init__(self, summary: dict, trajectory: Trajectory, out: Optional[str]):
+        self.summary = summary
+        self.trajectory = trajectory
+        self.out = out
+
+    def __repr__(self) -> str:
+        s = self.summary
+        return f"RunResult(method={s['method']!r}, seed={s['seed']}, outcome={s['outcome']!r}, ticks={s['ticks']})"
+
+
+class Rows:
+    """A table's or campaign's JSON document (``doc``) with its rows as a list of dicts."""
+
+    def __init__(self, doc: dict, key: str):
+        self.doc = doc
+        self.rows: List[dict] = list(doc.get(key, []))
+
+    def __iter__(self):
+        return iter(self.rows)
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def __getitem__(self, i):
+        return self.rows[i]
+
+    def to_pandas(self):
+        import pandas as pd
+
+        return pd.DataFrame(self.rows)
+
+    def __repr__(self) -> str:
+        return f"Rows({len(self.rows)} rows)"
+
+
+def _scenario(scenario) -> Scenario:
+    if scenario is None:
+        return Scenario.default()
+    if isinstance(scenario, Scenario):
+        return scenario
+    if isinstance(scenario, (str, os.PathLike)):
+        return Scenario.load(os.fspath(scenario))
+    raise TypeError(f"a Scenario, a path or None, not {type(scenario).__name__}")
+
+
+def run(scenario=None, method: Optional[str] = None, seed: Optional[int] = None, *,
+        out=None, force: bool = False, calib=None) -> RunResult:
+    """Runs one (method, seed) of a scenario (a :class:`Scenario`, a path, or None for the
+    default). Nothing touches disk unless ``out`` names a run folder to write (the CLI's files,
+    whole or not at all). Methods with a detector calibrate it as the CLI does (``calib``, the
+    scenario's file, or healthy runs cached in ``$AIFT_CACHE_DIR`` / ``~/.cache/aift``)."""
+    summary, names, data = _aift.run(_scenario(scenario), method, seed, _path(out), force, _path(calib))
+    return RunResult(json.loads(summary), Trajectory(names, data), _path(out))
+
+
+def table(scenario=None, methods: Optional[Sequence[str]] = None, seeds: int = 20, *,
+          out=None, force: bool = False, calib=None) -> Rows:
+    """Every method (or ``methods``) over ``seeds`` seeds from the scenario's: table.json's
+    document and its rows (one per method)."""
+    doc = _aift.run_table(_scenario(scenario), None if methods is None else list(methods), seeds,
+                          _path(out), force, _path(calib))
+    return Rows(json.loads(doc), "rows")
+
+
+def campaign(path=None, *, seeds: Optional[int] = None, methods: Optional[Sequence[str]] = None,
+             set: Iterable[str] = (), shard: Optional[str] = None, out=None, force: bool = False) -> Rows:
+    """Runs a campaign file (default: the bundled one): campaign.json's document, with its
+    per-cell rows (``doc["cells"]``) as rows."""
+    doc = json.loads(_aift.run_campaign(_path(path), seeds, None if methods is None else list(methods),
+                                        list(set), shard, _path(out), force))
+    return Rows(doc, "cells")
+
+
+def methods() -> List[str]:
+    """The method names."""
+    return _aift.methods()
+
+
+def schema() -> dict:
+    """The scenario file's JSON Schema (as ``aift schema`` prints it)."""
+    return json.loads(_aift.schema())
+
+
+def _obs(raw: dict) -> dict:
+    return {k: (np.asarray(v, dtype=np.float64) if isinstance(v, list) else v) for k, v in raw.items()}
+
+
+class Sim:
+    """The closed loop stepped from Python.
+
+    ``obs, info = sim.reset(seed)`` senses, estimates and controls tick 0; ``obs, info =
+    sim.step()`` applies the controller's torques (``obs["u"]``) or ``torques=``, steps the plant
+    one tick and decides the next (sensor ``readings=`` may replace the sensors', NaN or None for
+    missing). ``obs`` has ``t``, ``q``, ``qd`` (the plant), ``mu``, ``mu_p`` (the belief),
+    ``target``, ``u``, ``y`` (readings, in ``sim.channels`` order) and ``precision``; ``info``
+    has ``free_energy``, ``alarm``, ``isolated``, ``diverged`` and ``done`` (the scenario's last
+    tick). With nothing supplied the ticks equal :func:`run`'s bit for bit.
+    """
+
+    def __init__(self, scenario=None, method: Optional[str] = None, *, calib=None):
+        self._sim = _aift.Sim(_scenario(scenario), method, _path(calib))
+
+    def reset(self, seed: Optional[int] = None, readings=None):
+        obs, info = self._sim.reset(seed, None if readings is None else [None if v is None else float(v) for v in readings])
+        return _obs(obs), info
+
+    def step(self, torques=None, readings=None):
+        u = None if torques is None else [float(v) for v in np.asarray(torques, dtype=np.float64).ravel()]
+        r = None if readings is None else [None if v is None else float(v) for v in readings]
+        obs, info = self._sim.step(u, r)
+        return _obs(obs), info
+
+    @property
+    def channels(self) -> List[str]:
+        return self._sim.channels
+
+    @property
+    def n_joints(self) -> int:
+        return self._sim.n_joints
+
+    @property
+    def ticks(self) -> int:
+        return self._sim.ticks
+
+    @property
+    def dt(self) -> float:
+        return self._sim.dt
+
+    @property
+    def method(self) -> str:
+        return self._sim.method
+
+    @property
+    def effort_limits(self):
+        return self._sim.effort_limits

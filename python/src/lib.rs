@@ -1,0 +1,723 @@
+//! `aift._aift`: the aift library from Python (PyO3, abi3). A thin layer: every call goes to the
+//! library function the CLI calls, so the numbers are the CLI's bit for bit; the Python package
+//! (`python/aift/`) turns the plain values returned here into numpy arrays, dicts and pandas.
+//!
+//! Long calls (runs, tables, campaigns, calibration) release the GIL. Errors arrive as
+//! `aift.BadInput` (what the CLI exits 2 for) or `aift.InternalError` (exit 1), with the message
+//! the CLI prints after `error: `.
+
+use std::cell::Cell;
+use std::path::{Path, PathBuf};
+
+use pyo3::exceptions::{PyException, PyKeyboardInterrupt};
+use pyo3::prelude::*;
+use pyo3::types::{PyBool, PyBytes, PyDict, PyFloat, PyInt, PyList, PyString, PyTuple};
+
+use aift::fsio::{FsError, OutputKind, Staged};
+use aift::precision::Calibration;
+use aift::report::{ReportError, campaign_files, run_files, table_files};
+use aift::scenario::calibrate;
+use aift::scenario::campaign::{self, Campaign, CampaignConfig, Shard};
+use aift::scenario::metrics::DivergenceGuard;
+use aift::scenario::{
+    LoadedScenario, Method, Observer, RunSetup, ScenarioError, Simulation, TickRecord,
+    TrajectoryColumns, table,
+};
+use aift::sensors::Readings;
+
+pyo3::create_exception!(
+    _aift,
+    AiftError,
+    PyException,
+    "Base of aift's errors; the message is the one the CLI prints."
+);
+pyo3::create_exception!(
+    _aift,
+    BadInput,
+    AiftError,
+    "The input is at fault (a file, a key, a value): what the CLI exits 2 for."
+);
+pyo3::create_exception!(
+    _aift,
+    InternalError,
+    AiftError,
+    "aift or the machine is at fault (an output could not be written): the CLI's exit 1."
+);
+
+fn bad(message: impl Into<String>) -> PyErr {
+    BadInput::new_err(message.into())
+}
+
+fn scenario_err(error: ScenarioError, overrides: &[String]) -> PyErr {
+    bad(error.message(overrides))
+}
+
+fn file_err(error: FsError) -> PyErr {
+    let message = aift::error_chain(&error);
+    if error.is_input_error() {
+        bad(message)
+    } else {
+        InternalError::new_err(message)
+    }
+}
+
+fn report_err(error: ReportError) -> PyErr {
+    let message = aift::error_chain(&error);
+    if error.is_input_error() {
+        bad(message)
+    } else {
+        InternalError::new_err(message)
+    }
+}
+
+fn parse_method(name: &str, what: &str) -> PyResult<Method> {
+    name.parse::<Method>()
+        .map_err(|e| bad(format!("{what}: {e}")))
+}
+
+/// Where a scenario's text comes from, so that overrides can be re-applied to it.
+#[derive(Clone, Debug)]
+enum Source {
+    Default,
+    File(PathBuf),
+    Text {
+        text: String,
+        label: PathBuf,
+        base: PathBuf,
+    },
+}
+
+/// A scenario: a file, the embedded default or TOML text, with the CLI's `--set` overrides.
+/// Every change is checked at once (the key, the value's type); the arm, the camera and the
+/// faults are checked against each other when a run prepares it.
+#[pyclass(module = "aift._aift", name = "Scenario")]
+#[derive(Clone)]
+struct PyScenario {
+    source: Source,
+    overrides: Vec<String>,
+    loaded: LoadedScenario,
+}
+
+impl PyScenario {
+    fn build(source: Source, overrides: Vec<String>) -> PyResult<Self> {
+        let loaded = match &source {
+            Source::Default => LoadedScenario::embedded_default(&overrides),
+            Source::File(path) => LoadedScenario::from_file(path, &overrides),
+            Source::Text { text, label, base } => {
+                LoadedScenario::from_text(text, label, base, &overrides)
+            }
+        }
+        .map_err(|e| scenario_err(e, &overrides))?;
+        Ok(Self {
+            source,
+            overrides,
+            loaded,
+        })
+    }
+
+    /// The scenario prepared for runs (arm, layout, GP), with the GIL released.
+    fn prepare(&self, py: Python<'_>) -> PyResult<RunSetup> {
+        let loaded = self.loaded.clone();
+        py.detach(|| RunSetup::prepare(loaded))
+            .map_err(|e| scenario_err(e, &self.overrides))
+    }
+}
+
+/// A Python value as the text of a `--set KEY=VALUE` value: numbers and booleans in TOML form,
+/// strings as they are (the CLI reads them as TOML, falling back to a bare string), lists and
+/// tuples as TOML arrays.
+fn value_text(value: &Bound<'_, PyAny>, nested: bool) -> PyResult<String> {
+    if value.is_instance_of::<PyBool>() {
+        return Ok(if value.extract::<bool>()? {
+            "true".into()
+        } else {
+            "false".into()
+        });
+    }
+    if value.is_instance_of::<PyInt>() {
+        return Ok(value.str()?.to_string());
+    }
+    if value.is_instance_of::<PyFloat>() {
+        let v: f64 = value.extract()?;
+        return Ok(if v.is_nan() {
+            "nan".into()
+        } else if v.is_infinite() {
+            if v > 0.0 { "inf".into() } else { "-inf".into() }
+        } else {
+            ryu::Buffer::new().format(v).to_string()
+        });
+    }
+    if value.is_instance_of::<PyString>() {
+        let s: String = value.extract()?;
+        return Ok(if nested {
+            toml::Value::String(s).to_string()
+        } else {
+            s
+        });
+    }
+    if value.is_instance_of::<PyList>() || value.is_instance_of::<PyTuple>() {
+        let items = value
+            .try_iter()?
+            .map(|item| value_text(&item?, true))
+            .collect::<PyResult<Vec<_>>>()?;
+        return Ok(format!("[{}]", items.join(", ")));
+    }
+    if let Ok(v) = value.extract::<f64>() {
+        // numpy scalars and other numbers.
+        return value_text(&PyFloat::new(value.py(), v).into_any(), nested);
+    }
+    Err(bad(format!(
+        "a scenario value must be a bool, number, string or list, not {}",
+        value.get_type().name()?
+    )))
+}
+
+#[pymethods]
+impl PyScenario {
+    /// Reads a scenario file, with optional overrides (`["KEY=VALUE", ...]`).
+    #[staticmethod]
+    #[pyo3(signature = (path, overrides = Vec::new()))]
+    fn load(path: PathBuf, overrides: Vec<String>) -> PyResult<Self> {
+        Self::build(Source::File(path), overrides)
+    }
+
+    /// The embedded default scenario (the paper's arm, joint 1's encoder freezing at 8 s).
+    #[staticmethod]
+    #[pyo3(signature = (overrides = Vec::new()))]
+    fn default(overrides: Vec<String>) -> PyResult<Self> {
+        Self::build(Source::Default, overrides)
+    }
+
+    /// A scenario from TOML text; relative paths (the URDF) resolve against `base_dir`
+    /// (default: the current folder).
+    #[staticmethod]
+    #[pyo3(signature = (text, base_dir = None, overrides = Vec::new()))]
+    fn from_toml(text: String, base_dir: Option<PathBuf>, overrides: Vec<String>) -> PyResult<Self> {
+        let base = base_dir.unwrap_or_else(|| PathBuf::from("."));
+        let label = base.join("<string>");
+        Self::build(Source::Text { text, label, base }, overrides)
+    }
+
+    /// Sets a key, as `--set KEY=VALUE` does (dotted keys, `[i]` indices); returns the
+    /// scenario, so calls chain. The scenario is unchanged when the key or value is refused.
+    fn set<'py>(slf: Bound<'py, Self>, key: &str, value: &Bound<'py, PyAny>) -> PyResult<Bound<'py, Self>> {
+        let text = value_text(value, false)?;
+        let next = {
+            let this = slf.borrow();
+            let mut overrides = this.overrides.clone();
+            overrides.push(format!("{key}={text}"));
+            Self::build(this.source.clone(), overrides)?
+        };
+        *slf.borrow_mut() = next;
+        Ok(slf)
+    }
+
+    /// The scenario as TOML (every default filled in): `Scenario.from_toml` reads it back.
+    fn to_toml(&self) -> String {
+        toml::to_string_pretty(&self.loaded.scenario).expect("a scenario always serialises")
+    }
+
+    /// A copy that later `set` calls do not share.
+    fn copy(&self) -> Self {
+        self.clone()
+    }
+
+    #[getter]
+    fn name(&self) -> String {
+        self.loaded.scenario.name.clone()
+    }
+
+    /// The file it came from (`<embedded>/...` for the default).
+    #[getter]
+    fn path(&self) -> String {
+        self.loaded.path.display().to_string()
+    }
+
+    /// The overrides applied so far, as `KEY=VALUE`.
+    #[getter]
+    fn overrides(&self) -> Vec<String> {
+        self.overrides.clone()
+    }
+
+    /// Seconds simulated, the tick (s) and the seed the scenario names.
+    #[getter]
+    fn duration(&self) -> f64 {
+        self.loaded.scenario.duration
+    }
+
+    #[getter]
+    fn dt(&self) -> f64 {
+        self.loaded.scenario.dt
+    }
+
+    #[getter]
+    fn seed(&self) -> u64 {
+        self.loaded.scenario.seed
+    }
+
+    /// The method the scenario names.
+    #[getter]
+    fn method(&self) -> String {
+        self.loaded.scenario.precision.method.name().to_string()
+    }
+
+    /// Checks the scenario against its arm (loads the URDF, trains or loads the GP): the checks
+    /// a run makes before any work.
+    fn validate(&self, py: Python<'_>) -> PyResult<()> {
+        self.prepare(py).map(|_| ())
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "Scenario(name={:?}, path={:?}, overrides={:?})",
+            self.loaded.scenario.name,
+            self.loaded.path.display().to_string(),
+            self.overrides
+        )
+    }
+}
+
+/// The calibration the methods need (file, scenario's, cache or computed), GIL released.
+fn calibration(
+    py: Python<'_>,
+    setup: &RunSetup,
+    methods: &[Method],
+    calib: Option<&Path>,
+) -> PyResult<Option<Calibration>> {
+    let cache = calibrate::default_cache_dir();
+    let found = py
+        .detach(|| calibrate::calibration_for(setup, methods, calib, cache.as_deref()))
+        .map_err(|e| bad(aift::error_chain(&e)))?;
+    Ok(found.map(|(cal, _)| cal))
+}
+
+/// Stops a run when Python has a signal pending (Ctrl-C), checked every 4096 ticks.
+struct Interrupt {
+    interrupted: Cell<bool>,
+}
+
+impl Observer for Interrupt {
+    fn on_tick(&mut self, r: &TickRecord<'_>) {
+        if r.tick % 4096 == 4095 && Python::attach(|py| py.check_signals()).is_err() {
+            self.interrupted.set(true);
+        }
+    }
+    fn stop(&self) -> Option<String> {
+        self.interrupted
+            .get()
+            .then(|| "interrupted from Python".to_string())
+    }
+}
+
+/// The summary (as summary.json's text), the trajectory's column names and its values as
+/// little-endian f64 bytes, column after column.
+type RunOutput<'py> = (String, Vec<String>, Bound<'py, PyBytes>);
+
+fn columns_bytes<'py>(py: Python<'py>, columns: &TrajectoryColumns) -> Bound<'py, PyBytes> {
+    let mut bytes = Vec::with_capacity(columns.rows() * columns.names().len() * 8);
+    for column in columns.columns() {
+        for v in column {
+            bytes.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    PyBytes::new(py, &bytes)
+}
+
+/// Runs a scenario: in memory, or into the run folder `out` (the CLI's files, written whole
+/// or not at all).
+#[pyfunction]
+#[pyo3(signature = (scenario, method = None, seed = None, out = None, force = false, calib = None))]
+fn run<'py>(
+    py: Python<'py>,
+    scenario: &PyScenario,
+    method: Option<&str>,
+    seed: Option<u64>,
+    out: Option<PathBuf>,
+    force: bool,
+    calib: Option<PathBuf>,
+) -> PyResult<RunOutput<'py>> {
+    let mut setup = scenario.prepare(py)?;
+    let method = match method {
+        Some(m) => parse_method(m, "method")?,
+        None => setup.scenario().precision.method,
+    };
+    let seed = seed.unwrap_or(setup.scenario().seed);
+    setup.loaded.scenario.precision.method = method;
+    setup.loaded.scenario.seed = seed;
+    let sc = setup.scenario();
+    let mut columns =
+        TrajectoryColumns::new(&setup.layout, sc.ticks(), sc.record_every).map_err(|m| {
+            bad(format!("{}: `record_every` {m}", setup.loaded.path.display()))
+        })?;
+    let staged = match &out {
+        Some(dir) => Some(Staged::begin(dir, OutputKind::Folder, force).map_err(file_err)?),
+        None => None,
+    };
+    let cal = calibration(py, &setup, &[method], calib.as_deref())?;
+    let mut interrupt = Interrupt {
+        interrupted: Cell::new(false),
+    };
+    let result = py.detach(|| {
+        let mut both = aift::scenario::Observers(vec![&mut columns, &mut interrupt]);
+        match staged {
+            Some(staged) => run_files::run_into_with(staged, &setup, method, seed, cal.as_ref(), &mut both)
+                .map_err(report_err),
+            None => aift::scenario::run(&setup, method, seed, cal.as_ref(), &mut both)
+                .map_err(|e| scenario_err(e, &[])),
+        }
+    })?;
+    if interrupt.interrupted.get() {
+        return Err(PyKeyboardInterrupt::new_err("aift.run interrupted"));
+    }
+    let summary = serde_json::to_string(&run_files::summary_json(&setup, &result))
+        .expect("a summary serialises");
+    let bytes = columns_bytes(py, &columns);
+    Ok((summary, columns.names().to_vec(), bytes))
+}
+
+/// Every method over seeds `seed .. seed + seeds`; returns table.json's text. `out` writes the
+/// table folder.
+#[pyfunction]
+#[pyo3(signature = (scenario, methods = None, seeds = 20, out = None, force = false, calib = None))]
+fn run_table(
+    py: Python<'_>,
+    scenario: &PyScenario,
+    methods: Option<Vec<String>>,
+    seeds: usize,
+    out: Option<PathBuf>,
+    force: bool,
+    calib: Option<PathBuf>,
+) -> PyResult<String> {
+    const MAX_SEEDS: usize = 100_000;
+    let setup = scenario.prepare(py)?;
+    let methods = parse_methods(methods)?;
+    if seeds == 0 || seeds > MAX_SEEDS {
+        return Err(bad(format!("seeds must be in 1..={MAX_SEEDS}")));
+    }
+    let first = setup.scenario().seed;
+    let seed_list: Vec<u64> = (0..seeds as u64)
+        .map(|i| first.checked_add(i))
+        .collect::<Option<_>>()
+        .ok_or_else(|| bad(format!("seed {first} + {seeds} overflows")))?;
+    let staged = match &out {
+        Some(dir) => Some(Staged::begin(dir, OutputKind::Folder, force).map_err(file_err)?),
+        None => None,
+    };
+    let cal = calibration(py, &setup, &methods, calib.as_deref())?;
+    let result = py
+        .detach(|| table::run_table(&setup, &methods, &seed_list, cal.as_ref(), &|| {}))
+        .map_err(|e| scenario_err(e, &[]))?;
+    if let Some(staged) = staged {
+        table_files::write_table(staged.path(), &setup, &result).map_err(report_err)?;
+        staged.commit().map_err(file_err)?;
+    }
+    Ok(table_files::table_json(&setup, &result).to_string())
+}
+
+fn parse_methods(methods: Option<Vec<String>>) -> PyResult<Vec<Method>> {
+    let Some(list) = methods else {
+        return Ok(Method::ALL.to_vec());
+    };
+    let mut out = Vec::new();
+    for m in list {
+        let method = parse_method(m.trim(), "methods")?;
+        if out.contains(&method) {
+            return Err(bad(format!("methods: {method} is listed twice")));
+        }
+        out.push(method);
+    }
+    if out.is_empty() {
+        return Err(bad("methods: the list is empty"));
+    }
+    Ok(out)
+}
+
+/// Runs a campaign file (default: the bundled one); returns campaign.json's text. `out` writes
+/// the campaign folder (or, for a shard, its records for `aift merge`).
+#[pyfunction]
+#[pyo3(signature = (path = None, seeds = None, methods = None, set = Vec::new(), shard = None, out = None, force = false))]
+#[allow(clippy::too_many_arguments)]
+fn run_campaign(
+    py: Python<'_>,
+    path: Option<PathBuf>,
+    seeds: Option<usize>,
+    methods: Option<Vec<String>>,
+    set: Vec<String>,
+    shard: Option<&str>,
+    out: Option<PathBuf>,
+    force: bool,
+) -> PyResult<String> {
+    let path = path.unwrap_or_else(campaign::bundled_campaign_path);
+    let shard = match shard {
+        Some(s) => Shard::parse(s).map_err(|e| bad(format!("shard: {e}")))?,
+        None => Shard::WHOLE,
+    };
+    if shard != Shard::WHOLE && out.is_none() {
+        return Err(bad(
+            "shard: a shard's records are for `aift merge`; give `out` to write them",
+        ));
+    }
+    let mut config = CampaignConfig::load(&path).map_err(|e| scenario_err(e, &[]))?;
+    if let Some(s) = seeds {
+        config.seeds = s;
+    }
+    if methods.is_some() {
+        config.methods = Some(parse_methods(methods)?);
+    }
+    config.set.extend(set);
+    let staged = match &out {
+        Some(dir) => Some(Staged::begin(dir, OutputKind::Folder, force).map_err(file_err)?),
+        None => None,
+    };
+    let cache = calibrate::default_cache_dir();
+    let (campaign, records) = py
+        .detach(|| {
+            let campaign = Campaign::from_config(config, &path, &[])?;
+            let records = campaign::run_campaign(&campaign, shard, cache.as_deref(), &|_, _| {})?;
+            Ok::<_, ScenarioError>((campaign, records))
+        })
+        .map_err(|e| scenario_err(e, &[]))?;
+    if let Some(staged) = staged {
+        if shard == Shard::WHOLE {
+            campaign_files::write_campaign(staged.path(), &campaign, &records)
+                .map_err(report_err)?;
+        } else {
+            aift::report::write_atomic(
+                &staged.path().join(campaign_files::RECORDS),
+                serde_json::to_string(&records)
+                    .expect("records serialise")
+                    .as_bytes(),
+            )
+            .map_err(report_err)?;
+        }
+        staged.commit().map_err(file_err)?;
+    }
+    let (cells, methods) = campaign::summarise(&campaign, &records.runs);
+    Ok(campaign_files::campaign_json(&campaign, &records, &cells, &methods).to_string())
+}
+
+/// The closed loop stepped from Python: `reset(seed)` senses, estimates and controls tick 0;
+/// each `step()` applies the torques (the controller's, or the caller's), steps the plant one
+/// tick and does the next tick's sensing, estimation and control. With nothing supplied, the
+/// ticks are those of `run`, bit for bit.
+#[pyclass(module = "aift._aift", name = "Sim", unsendable)]
+struct PySim {
+    setup: RunSetup,
+    method: Method,
+    calibration: Option<Calibration>,
+    sim: Option<Simulation>,
+    diverged: Option<(u64, String)>,
+}
+
+impl PySim {
+    fn readings(&self, values: Option<Vec<Option<f64>>>) -> PyResult<Option<Readings>> {
+        let Some(values) = values else {
+            return Ok(None);
+        };
+        let n = self.setup.layout.len();
+        if values.len() != n {
+            return Err(bad(format!(
+                "readings: {} values given, the arm has {n} channels ({})",
+                values.len(),
+                self.setup.layout.names().join(", ")
+            )));
+        }
+        Ok(Some(Readings {
+            values: values
+                .into_iter()
+                .map(|v| v.filter(|x| !x.is_nan()))
+                .collect(),
+        }))
+    }
+
+    fn observe<'py>(&mut self, py: Python<'py>) -> PyResult<(Bound<'py, PyDict>, Bound<'py, PyDict>)> {
+        let sim = self.sim.as_ref().expect("reset before observe");
+        let r = sim.record();
+        if self.diverged.is_none()
+            && let Some(reason) = DivergenceGuard.check(&r)
+        {
+            self.diverged = Some((r.tick, reason));
+        }
+        let obs = PyDict::new(py);
+        obs.set_item("tick", r.tick)?;
+        obs.set_item("t", r.t)?;
+        obs.set_item("q", r.q.to_vec())?;
+        obs.set_item("qd", r.qd.to_vec())?;
+        obs.set_item("mu", r.mu.to_vec())?;
+        obs.set_item("mu_p", r.mu_p.to_vec())?;
+        obs.set_item("target", r.target.to_vec())?;
+        obs.set_item("u", r.torques.to_vec())?;
+        obs.set_item(
+            "y",
+            r.readings
+                .values
+                .iter()
+                .map(|v| v.unwrap_or(f64::NAN))
+                .collect::<Vec<_>>(),
+        )?;
+        obs.set_item("precision", r.precisions.to_vec())?;
+        let info = PyDict::new(py);
+        info.set_item("free_energy", r.free_energy)?;
+        info.set_item("done", r.tick + 1 >= sim.ticks())?;
+        let (alarm, isolated) = match r.detection {
+            Some(d) => (
+                d.fired(),
+                d.isolated
+                    .iter()
+                    .map(|&c| self.setup.layout.name(c).to_string())
+                    .collect::<Vec<_>>(),
+            ),
+            None => (false, Vec::new()),
+        };
+        info.set_item("alarm", alarm)?;
+        info.set_item("isolated", isolated)?;
+        info.set_item(
+            "diverged",
+            self.diverged.as_ref().map(|(_, reason)| reason.clone()),
+        )?;
+        Ok((obs, info))
+    }
+}
+
+#[pymethods]
+impl PySim {
+    #[new]
+    #[pyo3(signature = (scenario, method = None, calib = None))]
+    fn new(
+        py: Python<'_>,
+        scenario: &PyScenario,
+        method: Option<&str>,
+        calib: Option<PathBuf>,
+    ) -> PyResult<Self> {
+        let mut setup = scenario.prepare(py)?;
+        let method = match method {
+            Some(m) => parse_method(m, "method")?,
+            None => setup.scenario().precision.method,
+        };
+        setup.loaded.scenario.precision.method = method;
+        let calibration = calibration(py, &setup, &[method], calib.as_deref())?;
+        Ok(Self {
+            setup,
+            method,
+            calibration,
+            sim: None,
+            diverged: None,
+        })
+    }
+
+    /// Starts over at tick 0 with sensor-noise seed `seed` (default: the scenario's); returns
+    /// (observation, info) of tick 0. `readings` replace the sensors' at tick 0.
+    #[pyo3(signature = (seed = None, readings = None))]
+    fn reset<'py>(
+        &mut self,
+        py: Python<'py>,
+        seed: Option<u64>,
+        readings: Option<Vec<Option<f64>>>,
+    ) -> PyResult<(Bound<'py, PyDict>, Bound<'py, PyDict>)> {
+        let readings = self.readings(readings)?;
+        let seed = seed.unwrap_or(self.setup.scenario().seed);
+        let mut sim = Simulation::new(&self.setup, self.method, seed, self.calibration.as_ref())
+            .map_err(|e| scenario_err(e, &[]))?;
+        sim.decide(readings.as_ref());
+        self.sim = Some(sim);
+        self.diverged = None;
+        self.observe(py)
+    }
+
+    /// Applies `torques` (default: the controller's for this tick, `obs["u"]`), steps the plant
+    /// one tick, and senses (or takes `readings`), estimates and controls the next tick.
+    #[pyo3(signature = (torques = None, readings = None))]
+    fn step<'py>(
+        &mut self,
+        py: Python<'py>,
+        torques: Option<Vec<f64>>,
+        readings: Option<Vec<Option<f64>>>,
+    ) -> PyResult<(Bound<'py, PyDict>, Bound<'py, PyDict>)> {
+        let readings = self.readings(readings)?;
+        if let Some((tick, reason)) = &self.diverged {
+            return Err(AiftError::new_err(format!(
+                "the run diverged at tick {tick} ({reason}); reset() to start over"
+            )));
+        }
+        let n = self.setup.layout.n_joints();
+        if let Some(u) = &torques {
+            if u.len() != n {
+                return Err(bad(format!(
+                    "torques: {} values given, the arm has {n} joints",
+                    u.len()
+                )));
+            }
+            if let Some(i) = u.iter().position(|v| !v.is_finite()) {
+                return Err(bad(format!("torques[{i}] is not finite")));
+            }
+        }
+        let sim = self
+            .sim
+            .as_mut()
+            .ok_or_else(|| AiftError::new_err("reset() before step()"))?;
+        sim.actuate(torques.as_deref());
+        sim.decide(readings.as_ref());
+        self.observe(py)
+    }
+
+    /// Channel names, in the order of `obs["y"]` and `obs["precision"]`.
+    #[getter]
+    fn channels(&self) -> Vec<String> {
+        self.setup.layout.names().iter().map(|s| s.to_string()).collect()
+    }
+
+    #[getter]
+    fn n_joints(&self) -> usize {
+        self.setup.layout.n_joints()
+    }
+
+    /// Ticks in the scenario (`info["done"]` turns true on the last).
+    #[getter]
+    fn ticks(&self) -> u64 {
+        self.setup.scenario().ticks()
+    }
+
+    #[getter]
+    fn dt(&self) -> f64 {
+        self.setup.scenario().dt
+    }
+
+    #[getter]
+    fn method(&self) -> String {
+        self.method.name().to_string()
+    }
+
+    /// Each joint's effort limit from the URDF (None where it has none).
+    #[getter]
+    fn effort_limits(&self) -> Vec<Option<f64>> {
+        self.setup.model.joints.iter().map(|j| j.effort).collect()
+    }
+}
+
+/// Method names, in the CLI's order.
+#[pyfunction]
+fn methods() -> Vec<String> {
+    Method::ALL.iter().map(|m| m.name().to_string()).collect()
+}
+
+/// The scenario file's JSON Schema, as `aift schema` prints it.
+#[pyfunction]
+fn schema() -> String {
+    serde_json::to_string_pretty(&aift::scenario::scenario_schema()).expect("serialises")
+}
+
+#[pymodule]
+fn _aift(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("AiftError", m.py().get_type::<AiftError>())?;
+    m.add("BadInput", m.py().get_type::<BadInput>())?;
+    m.add("InternalError", m.py().get_type::<InternalError>())?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add_class::<PyScenario>()?;
+    m.add_class::<PySim>()?;
+    m.add_function(wrap_pyfunction!(run, m)?)?;
+    m.add_function(wrap_pyfunction!(run_table, m)?)?;
+    m.add_function(wrap_pyfunction!(run_campaign, m)?)?;
+    m.add_function(wrap_pyfunction!(methods, m)?)?;
+    m.add_function(wrap_pyfunction!(schema, m)?)?;
+    Ok(())
+}

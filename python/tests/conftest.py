@@ -1,0 +1,41 @@
+"""Fixtures: the repository, the `aift` binary to compare with, a calibration cache shared by the
+CLI and Python within one test session."""
+
+import os
+import pathlib
+import subprocess
+
+import pytest
+
+REPO = pathlib.Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="session")
+def repo():
+    return REPO
+
+
+@pytest.fixture(scope="session")
+def aift_bin():
+    path = pathlib.Path(os.environ.get("AIFT_BIN", REPO / "target" / "release" / "aift"))
+    if not path.is_file():
+        pytest.fail(f"the aift binary {path} is missing: build it with `cargo build --release` or set AIFT_BIN")
+    return path
+
+
+@pytest.fixture(scope="session", autouse=True)
+def cache_dir(tmp_path_factory):
+    d = tmp_path_factory.mktemp("aift-cache")
+    os.environ["AIFT_CACHE_DIR"] = str(d)
+    return d
+
+
+@pytest.fixture
+def cli(aift_bin):
+    def run(*args, check=True):
+        p = subprocess.run([str(aift_bin), *map(str, args)], capture_output=True, text=True,
+                           env=dict(os.environ))
+        if check and p.returncode != 0:
+            raise AssertionError(f"aift {' '.join(map(str, args))} exited {p.returncode}:\n{p.stderr}")
+        return p
+    return run

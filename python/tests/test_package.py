@@ -1,0 +1,242 @@
+"""The Python package against the CLI: same numbers bit for bit, same errors, the step API."""
+
+import csv
+import json
+import math
+import threading
+
+import numpy as np
+import pytest
+
+import aift
+
+
+def read_csv(path):
+    with open(path, newline="") as f:
+        rows = list(csv.reader(f))
+    header, body = rows[0], rows[1:]
+    cols = list(zip(*body))
+    return header, {h: np.array([float(v) for v in c], dtype=np.float64) for h, c in zip(header, cols)}
+
+
+def assert_same_bits(a, b, name):
+    """Equal bit for bit; NaN (missing readings, undefined F) must sit in the same places."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    assert a.shape == b.shape, f"{name}: {a.shape} vs {b.shape}"
+    nan_a, nan_b = np.isnan(a), np.isnan(b)
+    assert np.array_equal(nan_a, nan_b), f"{name}: NaN in different places"
+    ok = a[~nan_a].view(np.uint64) == b[~nan_b].view(np.uint64)
+    assert ok.all(), f"{name}: first difference at row {np.argmin(ok)}: {a[~nan_a][~ok][0]!r} vs {b[~nan_b][~ok][0]!r}"
+
+
+def without_timing(summary):
+    return {k: v for k, v in summary.items() if k != "ticks_per_second"}
+
+
+@pytest.mark.parametrize("method", ["pl-always", "pl-detect"])
+def test_default_scenario_matches_aift_run_bit_for_bit(tmp_path, cli, method):
+    # The whole default scenario for the paper's method; a detector method on a shorter run
+    # (its calibration, computed once, is shared through the cache).
+    overrides = [] if method == "pl-always" else ["duration=10.0"]
+    sets = [a for o in overrides for a in ("--set", o)]
+    out = tmp_path / "cli"
+    cli("run", "--method", method, "--seed", "3", *sets, "--out", out)
+    sc = aift.Scenario.default(overrides)
+    r = aift.run(sc, method=method, seed=3)
+    header, expected = read_csv(out / "trajectory.csv")
+    assert r.trajectory.columns == header
+    assert len(r.trajectory) == len(expected["t"])
+    for name in header:
+        assert_same_bits(r.trajectory[name], expected[name], name)
+    with open(out / "summary.json") as f:
+        assert without_timing(r.summary) == without_timing(json.load(f))
+    assert r.out is None
+
+
+def test_out_writes_the_cli_run_folder(tmp_path, cli):
+    sc = aift.Scenario.default(["duration=3.0"])
+    cli("run", "--set", "duration=3.0", "--out", tmp_path / "cli")
+    r = aift.run(sc, out=tmp_path / "py")
+    names = sorted(p.name for p in (tmp_path / "cli").iterdir())
+    assert sorted(p.name for p in (tmp_path / "py").iterdir()) == names
+    assert (tmp_path / "py" / "trajectory.csv").read_bytes() == (tmp_path / "cli" / "trajectory.csv").read_bytes()
+    header, expected = read_csv(tmp_path / "py" / "trajectory.csv")
+    assert_same_bits(r.trajectory["mu1"], expected["mu1"], "mu1")
+    # A second write needs force, as in the CLI.
+    with pytest.raises(aift.BadInput, match="exists"):
+        aift.run(sc, out=tmp_path / "py")
+    aift.run(sc, out=tmp_path / "py", force=True)
+
+
+def test_to_pandas_and_numpy():
+    pd = pytest.importorskip("pandas")
+    r = aift.run(aift.Scenario.default(["duration=1.0"]), method="no-ft")
+    df = r.trajectory.to_pandas()
+    assert isinstance(df, pd.DataFrame)
+    assert list(df.columns) == r.trajectory.columns
+    assert df.shape == (1000, len(r.trajectory.columns))
+    assert r.trajectory.to_numpy().shape == df.shape
+    assert (df["t"].to_numpy() == r.trajectory["t"]).all()
+
+
+def test_scenario_set_to_toml_round_trip(repo):
+    sc = aift.Scenario.load(repo / "assets/scenarios/paper_healthy.toml")
+    sc.set("duration", 2.5).set("controller.prior_position_precision", 1e9).set("precision.method", "bayes")
+    assert sc.duration == 2.5 and sc.method == "bayes"
+    assert sc.overrides == ["duration=2.5", "controller.prior_position_precision=1000000000.0", "precision.method=bayes"]
+    back = aift.Scenario.from_toml(sc.to_toml(), base_dir=repo / "assets/scenarios")
+    assert back.to_toml() == sc.to_toml()
+    # Lists, booleans and indices reach the same keys as --set.
+    sc2 = aift.Scenario.default().set("faults[0].start", 9).set("initial.q", [0.1, -0.2])
+    assert "start = 9" in sc2.to_toml()
+    r1 = aift.run(sc2.copy().set("duration", 1.0), method="no-ft")
+    assert r1.trajectory["q1"][0] == 0.1 and r1.trajectory["q2"][0] == -0.2
+
+
+def test_errors_carry_the_cli_messages(cli, repo):
+    # An unknown key from an override.
+    p = cli("run", "--set", "controller.bogus=1", check=False)
+    assert p.returncode == 2
+    with pytest.raises(aift.BadInput) as e:
+        aift.Scenario.default().set("controller.bogus", 1)
+    assert p.stderr.strip() == f"error: {e.value}"
+    # An invalid value caught by validation (an arm-independent key).
+    p = cli("run", "--set", "dt=-1.0", check=False)
+    assert p.returncode == 2
+    with pytest.raises(aift.BadInput) as e:
+        aift.run(aift.Scenario.default(["dt=-1.0"]))
+    assert p.stderr.strip().endswith(str(e.value)), (p.stderr, str(e.value))
+    # A missing file.
+    p = cli("run", repo / "nope.toml", check=False)
+    assert p.returncode == 2
+    with pytest.raises(aift.BadInput) as e:
+        aift.Scenario.load(repo / "nope.toml")
+    assert p.stderr.strip() == f"error: {e.value}"
+    # An unknown method.
+    with pytest.raises(aift.BadInput, match="unknown method"):
+        aift.run(aift.Scenario.default(["duration=0.1"]), method="kalman")
+    assert issubclass(aift.BadInput, aift.AiftError) and issubclass(aift.InternalError, aift.AiftError)
+    # The scenario is unchanged by a refused set.
+    sc = aift.Scenario.default()
+    with pytest.raises(aift.BadInput):
+        sc.set("duration", "long")
+    assert sc.overrides == []
+
+
+def test_step_api_equals_run_and_reaches_the_target():
+    sc = aift.Scenario.default(["duration=6.0", "faults=[]"])
+    r = aift.run(sc, method="pl-always", seed=5)
+    sim = aift.Sim(sc, method="pl-always")
+    obs, info = sim.reset(seed=5)
+    mu1 = [obs["mu"][0]]
+    q = [obs["q"].copy()]
+    while not info["done"]:
+        obs, info = sim.step()
+        mu1.append(obs["mu"][0])
+        q.append(obs["q"].copy())
+    assert len(mu1) == sim.ticks == len(r.trajectory)
+    assert_same_bits(mu1, r.trajectory["mu1"], "mu1")
+    assert_same_bits([x[1] for x in q], r.trajectory["q2"], "q2")
+    error = np.abs(obs["q"] - obs["target"]).max()
+    assert error < 0.01, f"final joint error {error} rad"
+    assert info["diverged"] is None and not info["alarm"]
+
+
+def test_step_api_takes_torques_and_readings():
+    sc = aift.Scenario.default(["duration=3.0", "faults=[]"])
+    sim = aift.Sim(sc, method="pl-always")
+    assert sim.channels[:2] == ["enc1", "enc2"]
+    obs, _ = sim.reset(seed=1)
+    # The caller freezes encoder 1 at its first reading, as a fault would.
+    frozen = obs["y"][0]
+    for _ in range(100):
+        y = list(obs["y"])
+        y[0] = frozen
+        obs, info = sim.step(readings=[frozen] + [None] * (len(sim.channels) - 1))
+        assert obs["y"][0] == frozen and np.isnan(obs["y"][1:]).all()
+    # The caller's torques replace the controller's: a constant push on joint 1 of the arm
+    # hanging at rest turns joint 1 positively, and not as the controller would.
+    obs, _ = sim.reset(seed=1)
+    start = obs["q"].copy()
+    for _ in range(500):
+        held, _ = sim.step()
+    obs, _ = sim.reset(seed=1)
+    for _ in range(500):
+        obs, info = sim.step(torques=[2.0, 0.0])
+    assert obs["q"][0] - start[0] > 5e-3
+    assert np.abs(obs["q"] - held["q"]).max() > 0.1
+    with pytest.raises(aift.BadInput, match="torques"):
+        sim.step(torques=[0.0])
+    with pytest.raises(aift.BadInput, match="not finite"):
+        sim.step(torques=[math.nan, 0.0])
+    with pytest.raises(aift.BadInput, match="readings"):
+        sim.step(readings=[0.0])
+
+
+def test_long_calls_release_the_gil():
+    sc = aift.Scenario.default(["duration=4.0"])
+    aift.run(sc, method="no-ft")  # the GP and everything else warmed up
+    inside = threading.Event()
+    finished = threading.Event()
+
+    def work():
+        inside.set()
+        aift.run(sc, method="no-ft")
+        finished.set()
+
+    t = threading.Thread(target=work)
+    t.start()
+    inside.wait()
+    spins = 0
+    while not finished.is_set():
+        spins += 1
+    t.join()
+    # Had the run held the GIL, this thread could not have run while it went.
+    assert spins > 1000, spins
+
+
+def test_table_equals_the_cli(tmp_path, cli):
+    sc = aift.Scenario.default(["duration=9.0"])
+    rows = aift.table(sc, methods=["no-ft", "oracle"], seeds=2)
+    cli("table", "--set", "duration=9.0", "--methods", "no-ft,oracle", "--seeds", "2", "--out", tmp_path / "t")
+    with open(tmp_path / "t" / "table.json") as f:
+        doc = json.load(f)
+    assert rows.doc == doc
+    assert [r["method"] for r in rows] == ["no-ft", "oracle"]
+    assert rows.to_pandas().shape[0] == 2
+
+
+def test_campaign_equals_the_cli(tmp_path, cli, repo):
+    text = f'''
+name = "py_tiny"
+seeds = 1
+methods = ["no-ft", "oracle"]
+set = ["robot.engine=\\"articulated\\"", "duration=9.0"]
+channels = ["enc*"]
+
+[[arms]]
+name = "paper"
+scenario = "{repo / 'assets/scenarios/paper_healthy.toml'}"
+
+[[kinds]]
+kind = "freeze"
+onsets = ["moving"]
+'''
+    path = tmp_path / "tiny.toml"
+    path.write_text(text)
+    rows = aift.campaign(path, out=tmp_path / "py")
+    cli("campaign", path, "--out", tmp_path / "cli")
+    with open(tmp_path / "cli" / "campaign.json") as f:
+        assert rows.doc == json.load(f)
+    assert len(rows) == len(rows.doc["cells"]) > 0
+    for name in ["campaign.csv", "campaign.md", "campaign.json"]:
+        assert (tmp_path / "py" / name).read_bytes() == (tmp_path / "cli" / name).read_bytes(), name
+    with pytest.raises(aift.BadInput, match="shard"):
+        aift.campaign(path, shard="1/2")
+
+
+def test_schema_and_methods():
+    s = aift.schema()
+    assert "properties" in s and "faults" in s["properties"]
+    assert "hybrid" in aift.methods() and "oracle" in aift.methods()
