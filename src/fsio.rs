@@ -108,8 +108,13 @@ fn kind_of(meta: &std::fs::Metadata) -> &'static str {
     }
 }
 
-/// Reads at most `limit` bytes of a regular file.
-pub fn read_bounded(path: &Path, limit: u64) -> Result<Vec<u8>, FsError> {
+/// Opens a regular file of at most `limit` bytes for streaming reads (a FIFO or device is
+/// refused before it is opened; reads stop one byte past the limit, so a file that grows is
+/// caught by the caller).
+pub fn open_bounded(
+    path: &Path,
+    limit: u64,
+) -> Result<(std::io::Take<std::fs::File>, u64), FsError> {
     let read_err = |source| FsError::Read {
         path: path.to_path_buf(),
         source,
@@ -145,10 +150,19 @@ pub fn read_bounded(path: &Path, limit: u64) -> Result<Vec<u8>, FsError> {
             limit,
         });
     }
-    let mut bytes = Vec::with_capacity(meta.len() as usize);
-    file.take(limit + 1)
-        .read_to_end(&mut bytes)
-        .map_err(read_err)?;
+    let len = meta.len();
+    Ok((file.take(limit + 1), len))
+}
+
+/// Reads at most `limit` bytes of a regular file.
+pub fn read_bounded(path: &Path, limit: u64) -> Result<Vec<u8>, FsError> {
+    let read_err = |source| FsError::Read {
+        path: path.to_path_buf(),
+        source,
+    };
+    let (mut file, len) = open_bounded(path, limit)?;
+    let mut bytes = Vec::with_capacity(len as usize);
+    file.read_to_end(&mut bytes).map_err(read_err)?;
     if bytes.len() as u64 > limit {
         return Err(FsError::TooLarge {
             path: path.to_path_buf(),

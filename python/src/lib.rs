@@ -192,7 +192,11 @@ impl PyScenario {
     /// (default: the current folder).
     #[staticmethod]
     #[pyo3(signature = (text, base_dir = None, overrides = Vec::new()))]
-    fn from_toml(text: String, base_dir: Option<PathBuf>, overrides: Vec<String>) -> PyResult<Self> {
+    fn from_toml(
+        text: String,
+        base_dir: Option<PathBuf>,
+        overrides: Vec<String>,
+    ) -> PyResult<Self> {
         let base = base_dir.unwrap_or_else(|| PathBuf::from("."));
         let label = base.join("<string>");
         Self::build(Source::Text { text, label, base }, overrides)
@@ -200,7 +204,11 @@ impl PyScenario {
 
     /// Sets a key, as `--set KEY=VALUE` does (dotted keys, `[i]` indices); returns the
     /// scenario, so calls chain. The scenario is unchanged when the key or value is refused.
-    fn set<'py>(slf: Bound<'py, Self>, key: &str, value: &Bound<'py, PyAny>) -> PyResult<Bound<'py, Self>> {
+    fn set<'py>(
+        slf: Bound<'py, Self>,
+        key: &str,
+        value: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, Self>> {
         let text = value_text(value, false)?;
         let next = {
             let this = slf.borrow();
@@ -347,7 +355,10 @@ fn run<'py>(
     let sc = setup.scenario();
     let mut columns =
         TrajectoryColumns::new(&setup.layout, sc.ticks(), sc.record_every).map_err(|m| {
-            bad(format!("{}: `record_every` {m}", setup.loaded.path.display()))
+            bad(format!(
+                "{}: `record_every` {m}",
+                setup.loaded.path.display()
+            ))
         })?;
     let staged = match &out {
         Some(dir) => Some(Staged::begin(dir, OutputKind::Folder, force).map_err(file_err)?),
@@ -360,8 +371,10 @@ fn run<'py>(
     let result = py.detach(|| {
         let mut both = aift::scenario::Observers(vec![&mut columns, &mut interrupt]);
         match staged {
-            Some(staged) => run_files::run_into_with(staged, &setup, method, seed, cal.as_ref(), &mut both)
-                .map_err(report_err),
+            Some(staged) => {
+                run_files::run_into_with(staged, &setup, method, seed, cal.as_ref(), &mut both)
+                    .map_err(report_err)
+            }
             None => aift::scenario::run(&setup, method, seed, cal.as_ref(), &mut both)
                 .map_err(|e| scenario_err(e, &[])),
         }
@@ -530,7 +543,10 @@ impl PySim {
         }))
     }
 
-    fn observe<'py>(&mut self, py: Python<'py>) -> PyResult<(Bound<'py, PyDict>, Bound<'py, PyDict>)> {
+    fn observe<'py>(
+        &mut self,
+        py: Python<'py>,
+    ) -> PyResult<(Bound<'py, PyDict>, Bound<'py, PyDict>)> {
         let sim = self.sim.as_ref().expect("reset before observe");
         let r = sim.record();
         if self.diverged.is_none()
@@ -663,7 +679,12 @@ impl PySim {
     /// Channel names, in the order of `obs["y"]` and `obs["precision"]`.
     #[getter]
     fn channels(&self) -> Vec<String> {
-        self.setup.layout.names().iter().map(|s| s.to_string()).collect()
+        self.setup
+            .layout
+            .names()
+            .iter()
+            .map(|s| s.to_string())
+            .collect()
     }
 
     #[getter]

@@ -99,7 +99,7 @@ pub fn write_campaign(
             &cells,
         )?;
     }
-    Ok(())
+    super::html::write_report(dir).map(|_| ())
 }
 
 fn csv(campaign: &Campaign, records: &CampaignRecords, cells: &[CellSummary]) -> String {

@@ -5,6 +5,7 @@
 //! failure never leaves a half-written output.
 
 pub mod campaign_files;
+pub mod html;
 pub mod plots;
 pub mod run_files;
 pub mod table_files;

@@ -26,6 +26,8 @@ pub const PLOT_JOINTS: &str = "joints.svg";
 pub const PLOT_HEALTH: &str = "health.svg";
 pub const PLOT_DETECTOR: &str = "detector.svg";
 pub const PLOT_FREE_ENERGY: &str = "free_energy.svg";
+/// The run's page (`report.html`).
+pub const REPORT: &str = super::html::REPORT;
 
 /// Rows the plots are drawn from (the run is decimated to at most this many as it goes).
 pub const PLOT_ROWS: usize = 4000;
@@ -121,14 +123,16 @@ pub fn resolved_scenario(
     header + &toml::to_string_pretty(&s).expect("a scenario always serialises")
 }
 
-/// Writes every file of a run but the trajectory into `dir` (which must exist); `plots` holds
-/// the (decimated) rows the plots are drawn from.
+/// Writes every file of a run but the trajectory into `dir` (which must exist); `plots_rows`
+/// holds the (decimated) rows the plots and report.html are drawn from, `trajectory_rows` the
+/// rows of the trajectory file.
 pub fn write_run(
     dir: &Path,
     setup: &RunSetup,
     method: Method,
     result: &RunResult,
     plots_rows: &TrajectoryRecorder,
+    trajectory_rows: u64,
     calibration: Option<&Calibration>,
 ) -> Result<(), ReportError> {
     let urdf = setup
@@ -153,9 +157,12 @@ pub fn write_run(
     plots::health(&dir.join(PLOT_HEALTH), plots_rows, fault)?;
     plots::detector(&dir.join(PLOT_DETECTOR), plots_rows, fault)?;
     plots::free_energy(&dir.join(PLOT_FREE_ENERGY), plots_rows, fault)?;
-    let summary = serde_json::to_string_pretty(&summary_json(setup, result))
-        .expect("a summary always serialises");
-    write_atomic(&dir.join(SUMMARY), summary.as_bytes())
+    let summary_doc = summary_json(setup, result);
+    let summary = serde_json::to_string_pretty(&summary_doc).expect("a summary always serialises");
+    write_atomic(&dir.join(SUMMARY), summary.as_bytes())?;
+    let resolved = fsio::read_text(&dir.join(RESOLVED), fsio::MAX_SCENARIO_BYTES << 2)?;
+    let page = super::html::run_page(&summary_doc, Some(&resolved), plots_rows, trajectory_rows);
+    write_atomic(&dir.join(super::html::REPORT), page.as_bytes())
 }
 
 /// Runs `method` with `seed` and writes the whole run folder into `staged`, which is moved into
@@ -210,12 +217,21 @@ pub fn run_into_with(
         path: path.clone(),
         source,
     };
+    let trajectory_rows = writer.rows();
     writer
         .finish()
         .map_err(write_err)?
         .sync_all()
         .map_err(write_err)?;
-    write_run(&dir, setup, method, &result, &plot_rows, calibration)?;
+    write_run(
+        &dir,
+        setup,
+        method,
+        &result,
+        &plot_rows,
+        trajectory_rows,
+        calibration,
+    )?;
     staged.commit()?;
     Ok(result)
 }
@@ -230,13 +246,14 @@ pub fn run_in_memory(
     calibration: Option<&Calibration>,
 ) -> Result<(RunResult, serde_json::Value, TrajectoryColumns), ScenarioError> {
     let sc = setup.scenario();
-    let mut columns = TrajectoryColumns::new(&setup.layout, sc.ticks(), sc.record_every).map_err(
-        |message| ScenarioError::Invalid {
-            path: setup.loaded.path.clone(),
-            field: "record_every".into(),
-            message,
-        },
-    )?;
+    let mut columns =
+        TrajectoryColumns::new(&setup.layout, sc.ticks(), sc.record_every).map_err(|message| {
+            ScenarioError::Invalid {
+                path: setup.loaded.path.clone(),
+                field: "record_every".into(),
+                message,
+            }
+        })?;
     let result = scenario::run(setup, method, seed, calibration, &mut columns)?;
     let summary = summary_json(setup, &result);
     Ok((result, summary, columns))

@@ -23,7 +23,8 @@ pub fn write_table(dir: &Path, setup: &RunSetup, table: &Table) -> Result<(), Re
     write_atomic(
         &dir.join("table.md"),
         table_markdown(setup, table).as_bytes(),
-    )
+    )?;
+    super::html::write_report(dir).map(|_| ())
 }
 
 fn opt(v: Option<f64>) -> String {

@@ -274,6 +274,77 @@ impl TrajectoryRecorder {
     }
 }
 
+impl TrajectoryRecorder {
+    /// Reads a trajectory CSV streaming, keeping at most `max_rows` rows (decimated as
+    /// [`Self::bounded`] does while a run goes), so memory stays bounded however long the file.
+    /// Returns the rows kept and the number of rows in the file.
+    pub fn read_csv_decimated(path: &Path, max_rows: usize) -> Result<(Self, u64), FsError> {
+        use std::io::BufRead;
+        let (file, _) = fsio::open_bounded(path, fsio::MAX_TRAJECTORY_BYTES)?;
+        let bad = |line: u64, what: &str| FsError::BadOutput {
+            path: path.to_path_buf(),
+            message: format!("line {line}: {what}"),
+        };
+        let mut reader = std::io::BufReader::with_capacity(1 << 16, file);
+        let mut line = String::new();
+        let read = |reader: &mut std::io::BufReader<_>, line: &mut String| {
+            line.clear();
+            reader.read_line(line).map_err(|source| FsError::Read {
+                path: path.to_path_buf(),
+                source,
+            })
+        };
+        if read(&mut reader, &mut line)? == 0 {
+            return Err(bad(1, "no header"));
+        }
+        let header: Vec<String> = line.trim_end().split(',').map(String::from).collect();
+        let n_joints = header.iter().filter(|h| h.starts_with("mu_p")).count();
+        let schema = TrajectorySchema {
+            columns: header.clone(),
+            n_joints,
+        };
+        let max_rows = max_rows.max(2);
+        let mut out = Self {
+            header,
+            rows: Vec::new(),
+            n_joints,
+            schema,
+            every: 1,
+            max_rows: Some(max_rows),
+        };
+        let mut total = 0u64;
+        while read(&mut reader, &mut line)? > 0 {
+            let number = total + 2;
+            let text = line.trim_end();
+            if text.is_empty() {
+                continue;
+            }
+            if total.is_multiple_of(out.every) {
+                let row: Vec<f64> = text
+                    .split(',')
+                    .map(|v| v.parse::<f64>())
+                    .collect::<Result<_, _>>()
+                    .map_err(|_| bad(number, "not a number"))?;
+                if row.len() != out.header.len() {
+                    return Err(bad(number, "wrong number of columns"));
+                }
+                out.rows.push(row);
+                if out.rows.len() >= max_rows {
+                    let mut keep = 0;
+                    for i in (0..out.rows.len()).step_by(2) {
+                        out.rows.swap(keep, i);
+                        keep += 1;
+                    }
+                    out.rows.truncate(keep);
+                    out.every *= 2;
+                }
+            }
+            total += 1;
+        }
+        Ok((out, total))
+    }
+}
+
 impl Observer for TrajectoryRecorder {
     fn on_tick(&mut self, r: &TickRecord<'_>) {
         if !r.tick.is_multiple_of(self.every) {

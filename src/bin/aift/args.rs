@@ -35,10 +35,22 @@ pub enum Command {
     Campaign(CampaignArgs),
     /// Merge the shards of a campaign into the files of the whole campaign.
     Merge(MergeArgs),
+    /// Write report.html (a self-contained page: plots, tables, the scenario) into a run, table
+    /// or campaign folder.
+    Report(ReportArgs),
     /// Print the scenario file's JSON Schema (for editors: validation and completion).
     Schema,
     /// Print a shell completion script, e.g. `aift completions bash > ~/.local/share/bash-completion/completions/aift`.
     Completions(CompletionsArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct ReportArgs {
+    /// A folder written by `aift run`, `aift table`, `aift campaign` or `aift merge`.
+    pub dir: PathBuf,
+    /// Print {"kind", "report"} as JSON on stdout.
+    #[arg(long)]
+    pub json: bool,
 }
 
 #[derive(Debug, Args)]

@@ -101,6 +101,18 @@ pub fn dispatch(cli: Cli) -> Result<(), Failure> {
         Command::Init(args) => init(args),
         Command::Campaign(args) => campaign(args),
         Command::Merge(args) => merge(args),
+        Command::Report(args) => {
+            let (kind, path) = report::html::write_report(&args.dir).map_err(report_failure)?;
+            if args.json {
+                println!(
+                    "{}",
+                    serde_json::json!({"kind": kind.name(), "report": path})
+                );
+            } else {
+                println!("wrote the {} report {}", kind.name(), path.display());
+            }
+            Ok(())
+        }
         Command::Schema => {
             let schema = scenario::scenario_schema();
             println!(
@@ -142,8 +154,7 @@ fn campaign(args: CampaignArgs) -> Result<(), Failure> {
         None => Shard::WHOLE,
     };
     // Options that change the campaign's definition go into its configuration (and fingerprint).
-    let mut config =
-        aift::scenario::campaign::CampaignConfig::load(&path).map_err(bad_input)?;
+    let mut config = aift::scenario::campaign::CampaignConfig::load(&path).map_err(bad_input)?;
     if let Some(s) = args.seeds {
         config.seeds = s;
     }

@@ -1,0 +1,62 @@
+// aift report: draws the page's time series with uPlot (vendored). Every plot that is drawn is
+// counted in <body data-plots-drawn>, every failure in data-plot-errors, so a headless browser
+// can check the page; the static SVG plots count as drawn when they hold shapes.
+(function () {
+  "use strict";
+  var body = document.body;
+  var drawn = 0, failed = 0;
+  window.aiftPlots = [];
+  var palette = ["#0969da", "#cf222e", "#1a7f37", "#8250df", "#bf8700", "#1b7c83", "#e16f24", "#6e7781", "#a40e26", "#4d2d00"];
+  function markFaults(u, marks) {
+    var ctx = u.ctx;
+    ctx.save();
+    ctx.strokeStyle = "#cf222e";
+    ctx.setLineDash([5, 4]);
+    ctx.lineWidth = 1.5 * (window.devicePixelRatio || 1);
+    marks.forEach(function (t) {
+      if (t < u.scales.x.min || t > u.scales.x.max) return;
+      var x = Math.round(u.valToPos(t, "x", true));
+      ctx.beginPath();
+      ctx.moveTo(x, u.bbox.top);
+      ctx.lineTo(x, u.bbox.top + u.bbox.height);
+      ctx.stroke();
+    });
+    ctx.restore();
+  }
+  function draw(spec, data) {
+    var el = document.getElementById(spec.id);
+    var x = data.columns[data.x];
+    var series = [{ label: "t (s)" }];
+    var values = [x];
+    spec.series.forEach(function (s, i) {
+      var col = s.column ? data.columns[s.column] : s.values;
+      values.push(col);
+      series.push({ label: s.label, stroke: s.color || palette[i % palette.length], width: s.width || 1.25, dash: s.dash, spanGaps: false });
+    });
+    var width = Math.max(320, Math.min(el.clientWidth || 560, 1160));
+    var opts = {
+      title: spec.title, width: width, height: spec.height || 260, series: series,
+      scales: { x: { time: false }, y: spec.ylog ? { distr: 3 } : (spec.yrange ? { range: spec.yrange } : {}) },
+      axes: [{ label: "t (s)" }, { label: spec.ylabel || "" }],
+      cursor: { drag: { x: true, y: false } },
+      legend: { live: true },
+      hooks: { draw: [function (u) { markFaults(u, data.faults || []); }] }
+    };
+    var plot = new uPlot(opts, values, el);
+    window.aiftPlots.push(plot);
+    if (plot.ctx && plot.ctx.canvas && plot.ctx.canvas.width > 0) { drawn += 1; el.dataset.drawn = "1"; }
+    else { failed += 1; }
+  }
+  try {
+    var data = JSON.parse(document.getElementById("aift-data").textContent);
+    (data.plots || []).forEach(function (spec) {
+      try { draw(spec, data); } catch (e) { failed += 1; console.error("plot " + spec.id + ": " + e); }
+    });
+  } catch (e) { failed += 1; console.error("report data: " + e); }
+  document.querySelectorAll("svg.static").forEach(function (svg) {
+    if (svg.querySelector("rect, path, circle, line, polyline, text")) { drawn += 1; svg.dataset.drawn = "1"; }
+    else { failed += 1; }
+  });
+  body.dataset.plotsDrawn = String(drawn);
+  body.dataset.plotErrors = String(failed);
+})();
