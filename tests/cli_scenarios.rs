@@ -27,7 +27,8 @@ fn ok(out: &Output) {
 }
 
 /// Every file a run writes (detector methods add calibration.json).
-const RUN_FILES: [&str; 9] = [
+const RUN_FILES: [&str; 10] = [
+    "report.html",
     "trajectory.csv",
     "summary.json",
     "scenario.resolved.toml",

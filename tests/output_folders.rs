@@ -17,8 +17,9 @@ fn aift() -> Command {
     c
 }
 
-const RUN_FILES: [&str; 10] = [
+const RUN_FILES: [&str; 11] = [
     ".aift-output",
+    "report.html",
     "trajectory.csv",
     "summary.json",
     "scenario.resolved.toml",
@@ -30,8 +31,9 @@ const RUN_FILES: [&str; 10] = [
     "gp.json",
 ];
 
-const TABLE_FILES: [&str; 5] = [
+const TABLE_FILES: [&str; 6] = [
     ".aift-output",
+    "report.html",
     "runs.csv",
     "table.csv",
     "table.json",
@@ -380,6 +382,7 @@ fn campaign_version(dir: &Path) -> u64 {
             "campaign.md",
             "reaching.csv",
             "records.json",
+            "report.html",
         ]),
         "{}",
         dir.display()

@@ -366,14 +366,9 @@ pub fn run_page(
     }
     let _ = write!(
         body,
-        "<h2 id=\"plots\">Plots</h2>\n<p class=\"note\">{} of the trajectory's {} rows{}.</p>\n<div class=\"grid\">",
+        "<h2 id=\"plots\">Plots</h2>\n<p class=\"note\">{} evenly spaced rows of the run's {} recorded rows.</p>\n<div class=\"grid\">",
         rows.rows.len(),
-        total,
-        if rows.stride() > 1 {
-            format!(" (every {}-th)", rows.stride())
-        } else {
-            String::new()
-        }
+        total
     );
     for p in &plots {
         let _ = write!(
@@ -642,7 +637,7 @@ fn campaign_page(dir: &Path) -> Result<String, ReportError> {
     }
     body.push_str("</table>\n");
     for arm in &arms {
-        let _ = write!(body, "<h2 id=\"arm-{}\">{}</h2>\n", esc(arm), esc(arm));
+        let _ = writeln!(body, "<h2 id=\"arm-{}\">{}</h2>", esc(arm), esc(arm));
         let heatmap = dir.join(format!("heatmap_{arm}.svg"));
         if let Some(svg) = read_optional(&heatmap)? {
             let start = svg
