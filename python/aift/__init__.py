@@ -35,6 +35,8 @@ __all__ = [
     "run",
     "table",
     "campaign",
+    "report",
+    "merge",
     "methods",
     "schema",
     "__version__",
@@ -169,6 +171,20 @@ def campaign(path=None, *, seeds: Optional[int] = None, methods: Optional[Sequen
     doc = json.loads(_aift.run_campaign(_path(path), seeds, None if methods is None else list(methods),
                                         list(set), shard, _path(out), force))
     return Rows(doc, "cells")
+
+
+def report(dir) -> str:
+    """Writes report.html into a run, table or campaign folder (as ``aift report DIR``);
+    returns its path."""
+    _, path = _aift.report(os.fspath(dir))
+    return path
+
+
+def merge(shards: Sequence, out, *, force: bool = False) -> Rows:
+    """Merges campaign shards (folders written with ``campaign(..., shard="K/N", out=...)``)
+    into the campaign folder ``out``, as ``aift merge``: campaign.json's document and cells."""
+    doc = _aift.merge([os.fspath(s) for s in shards], os.fspath(out), force)
+    return Rows(json.loads(doc), "cells")
 
 
 def methods() -> List[str]:

@@ -715,6 +715,28 @@ impl PySim {
     }
 }
 
+/// Writes report.html into a run, table or campaign folder; returns (kind, path).
+#[pyfunction]
+fn report(py: Python<'_>, dir: PathBuf) -> PyResult<(String, String)> {
+    let (kind, path) = py
+        .detach(|| aift::report::html::write_report(&dir))
+        .map_err(report_err)?;
+    Ok((kind.name().to_string(), path.display().to_string()))
+}
+
+/// Merges campaign shards (their folders) into the campaign folder `out`, as `aift merge`;
+/// returns campaign.json's text.
+#[pyfunction]
+#[pyo3(signature = (shards, out, force = false))]
+fn merge(py: Python<'_>, shards: Vec<PathBuf>, out: PathBuf, force: bool) -> PyResult<String> {
+    let staged = Staged::begin(&out, OutputKind::Folder, force).map_err(file_err)?;
+    py.detach(|| campaign_files::merge_into(staged.path(), &shards))
+        .map_err(report_err)?;
+    staged.commit().map_err(file_err)?;
+    let path = out.join(campaign_files::CAMPAIGN_JSON);
+    aift::fsio::read_text(&path, aift::fsio::MAX_CALIBRATION_BYTES).map_err(file_err)
+}
+
 /// Method names, in the CLI's order.
 #[pyfunction]
 fn methods() -> Vec<String> {
@@ -738,6 +760,8 @@ fn _aift(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(run, m)?)?;
     m.add_function(wrap_pyfunction!(run_table, m)?)?;
     m.add_function(wrap_pyfunction!(run_campaign, m)?)?;
+    m.add_function(wrap_pyfunction!(report, m)?)?;
+    m.add_function(wrap_pyfunction!(merge, m)?)?;
     m.add_function(wrap_pyfunction!(methods, m)?)?;
     m.add_function(wrap_pyfunction!(schema, m)?)?;
     Ok(())

@@ -240,3 +240,38 @@ def test_schema_and_methods():
     s = aift.schema()
     assert "properties" in s and "faults" in s["properties"]
     assert "hybrid" in aift.methods() and "oracle" in aift.methods()
+
+
+def test_shards_merge_to_the_whole_campaign_and_report(tmp_path, repo):
+    text = f'''
+name = "py_shards"
+seeds = 1
+methods = ["no-ft", "oracle"]
+set = ["robot.engine=\\"articulated\\"", "duration=9.0"]
+channels = ["enc*"]
+
+[[arms]]
+name = "paper"
+scenario = "{repo / 'assets/scenarios/paper_healthy.toml'}"
+
+[[kinds]]
+kind = "freeze"
+onsets = ["moving"]
+'''
+    path = tmp_path / "c.toml"
+    path.write_text(text)
+    whole = aift.campaign(path, out=tmp_path / "whole")
+    for k in (1, 2):
+        aift.campaign(path, shard=f"{k}/2", out=tmp_path / f"s{k}")
+    merged = aift.merge([tmp_path / "s1", tmp_path / "s2"], tmp_path / "merged")
+    assert merged.doc == whole.doc
+    for name in ["campaign.csv", "campaign.json", "report.html"]:
+        assert (tmp_path / "merged" / name).read_bytes() == (tmp_path / "whole" / name).read_bytes(), name
+    with pytest.raises(aift.BadInput, match="shard"):
+        aift.merge([tmp_path / "s1"], tmp_path / "half")
+    # report() rewrites a folder's page; a folder that is not aift's is refused.
+    (tmp_path / "whole" / "report.html").unlink()
+    assert aift.report(tmp_path / "whole").endswith("report.html")
+    assert (tmp_path / "whole" / "report.html").read_bytes() == (tmp_path / "merged" / "report.html").read_bytes()
+    with pytest.raises(aift.BadInput, match="not a run, table or campaign folder"):
+        aift.report(tmp_path)

@@ -61,6 +61,34 @@ fn entry(s: &CellSummary) -> String {
     }
 }
 
+/// Reads the records of a campaign folder or shard (`DIR/records.json`), for `aift merge`.
+pub fn read_records(dir: &Path) -> Result<CampaignRecords, ReportError> {
+    let path = dir.join(RECORDS);
+    let text = crate::fsio::read_text(&path, crate::fsio::MAX_CALIBRATION_BYTES)?;
+    serde_json::from_str(&text).map_err(|e| {
+        ReportError::File(crate::fsio::FsError::BadOutput {
+            path,
+            message: format!("not a campaign shard: {e}"),
+        })
+    })
+}
+
+/// Merges shards (their folders) into the files of the whole campaign, written into `dir`
+/// (which must exist); returns the merged records.
+pub fn merge_into(
+    dir: &Path,
+    shards: &[std::path::PathBuf],
+) -> Result<CampaignRecords, ReportError> {
+    let records = shards
+        .iter()
+        .map(|d| read_records(d))
+        .collect::<Result<Vec<_>, _>>()?;
+    let merged = crate::scenario::campaign::merge(&records).map_err(ReportError::Merge)?;
+    let campaign = Campaign::plan(merged.config.clone());
+    write_campaign(dir, &campaign, &merged)?;
+    Ok(merged)
+}
+
 /// Writes every campaign file into `dir` (which must exist), and the records.
 pub fn write_campaign(
     dir: &Path,

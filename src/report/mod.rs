@@ -25,6 +25,9 @@ pub enum ReportError {
     File(#[from] FsError),
     #[error("{path}: cannot draw the plot: {message}")]
     Plot { path: PathBuf, message: String },
+    /// Shards that do not make one campaign (overlapping, missing cells, another campaign).
+    #[error("{0}")]
+    Merge(String),
     /// The run itself failed (bad input found while running).
     #[error(transparent)]
     Scenario(Box<ScenarioError>),
@@ -42,6 +45,7 @@ impl ReportError {
         match self {
             Self::File(e) => e.is_input_error(),
             Self::Plot { .. } => false,
+            Self::Merge(_) => true,
             Self::Scenario(_) => true,
         }
     }

@@ -269,27 +269,15 @@ fn campaign(args: CampaignArgs) -> Result<(), Failure> {
 }
 
 fn merge(args: MergeArgs) -> Result<(), Failure> {
-    use aift::scenario::campaign::{Campaign, CampaignRecords, merge};
     let staged = stage(&args.out, OutputKind::Folder, args.force)?;
-    let mut shards = Vec::new();
-    for dir in &args.shards {
-        let path = dir.join(report::campaign_files::RECORDS);
-        let text = aift::fsio::read_text(&path, aift::fsio::MAX_CALIBRATION_BYTES)
-            .map_err(file_failure)?;
-        let records: CampaignRecords = serde_json::from_str(&text)
-            .map_err(|e| bad_input(anyhow!("{}: not a campaign shard: {e}", path.display())))?;
-        shards.push(records);
-    }
-    let merged = merge(&shards).map_err(|e| bad_input(anyhow!("{e}")))?;
-    let campaign = Campaign::plan(merged.config.clone());
-    report::campaign_files::write_campaign(staged.path(), &campaign, &merged)
-        .map_err(report_failure)?;
+    let merged =
+        report::campaign_files::merge_into(staged.path(), &args.shards).map_err(report_failure)?;
     staged
         .commit()
         .map_err(|e| report_failure(ReportError::File(e)))?;
     println!(
         "merged {} shards ({} runs) of campaign {}; wrote {}/",
-        shards.len(),
+        args.shards.len(),
         merged.runs.len() + merged.reaching.len(),
         merged.campaign,
         args.out.display()
