@@ -2,21 +2,31 @@
 # Every test: the Rust suite (`cargo test --release`), then the Python package and the HTML
 # report in a browser (pytest, in a fresh virtual environment under target/, with the package
 # installed by `pip install ./python`). Installs what they need on a fresh machine: pytest,
-# numpy, pandas, gymnasium and playwright from PyPI, and Debian's chromium when
-# /usr/bin/chromium is missing (apt-get; root or sudo).
+# numpy, pandas, gymnasium and playwright from PyPI, and Debian's chromium (plus python3-venv
+# if venv is missing) with apt-get, as root or with sudo.
+# AIFT_SCREENSHOTS=DIR keeps the report pages' screenshots in DIR.
 set -euo pipefail
+if [ -n "${AIFT_SCREENSHOTS:-}" ]; then
+  AIFT_SCREENSHOTS=$(realpath -m "$AIFT_SCREENSHOTS")
+  export AIFT_SCREENSHOTS
+fi
 cd "$(dirname "$0")/.."
 root=$(pwd)
+
+apt_install() {
+  local sudo=""
+  [ "$(id -u)" -ne 0 ] && sudo="sudo"
+  echo "== apt-get install $*" >&2
+  export DEBIAN_FRONTEND=noninteractive
+  $sudo apt-get install -y "$@" >/dev/null 2>&1 \
+    || { $sudo apt-get update >/dev/null && $sudo apt-get install -y "$@" >/dev/null; }
+}
 
 cargo test --release
 cargo build --release --bin aift
 
-if [ ! -x "${AIFT_CHROMIUM:-/usr/bin/chromium}" ]; then
-  echo "== installing Debian's chromium (the report's browser test)" >&2
-  sudo=""; [ "$(id -u)" -ne 0 ] && sudo="sudo"
-  $sudo apt-get install -y chromium >/dev/null 2>&1 \
-    || { $sudo apt-get update >/dev/null && $sudo apt-get install -y chromium >/dev/null; }
-fi
+[ -x /usr/bin/chromium ] || apt_install chromium
+python3 -m venv --help >/dev/null 2>&1 || apt_install python3-venv
 
 venv="$root/target/pytest-venv"
 echo "== fresh virtual environment $venv; pip install ./python" >&2
@@ -24,11 +34,6 @@ rm -rf "$venv"
 python3 -m venv "$venv"
 "$venv/bin/pip" install -q pytest numpy pandas gymnasium playwright
 "$venv/bin/pip" install -q ./python
-# Screenshots of the report pages go to $AIFT_SCREENSHOTS when set (made absolute here).
-if [ -n "${AIFT_SCREENSHOTS:-}" ]; then
-  AIFT_SCREENSHOTS=$(realpath -m "$AIFT_SCREENSHOTS")
-  export AIFT_SCREENSHOTS
-fi
 # From outside python/, so that `import aift` is the installed package, not the source folder.
 cd "$venv"
 AIFT_BIN="$root/target/release/aift" "$venv/bin/python" -m pytest -q "$root/python/tests"

@@ -57,6 +57,24 @@
     if (svg.querySelector("rect, path, circle, line, polyline, text")) { drawn += 1; svg.dataset.drawn = "1"; }
     else { failed += 1; }
   });
-  body.dataset.plotsDrawn = String(drawn);
-  body.dataset.plotErrors = String(failed);
+  // Images (heatmaps, as data URIs) count once they have loaded.
+  var images = document.querySelectorAll("img.static");
+  var pending = images.length;
+  function finish() {
+    body.dataset.plotsDrawn = String(drawn);
+    body.dataset.plotErrors = String(failed);
+  }
+  images.forEach(function (img) {
+    var settled = false;
+    function done() {
+      if (settled) return;
+      settled = true;
+      if (img.naturalWidth > 0) { drawn += 1; img.dataset.drawn = "1"; } else { failed += 1; console.error("image " + img.alt + " did not load"); }
+      pending -= 1;
+      if (pending === 0) finish();
+    }
+    if (img.complete) done();
+    else { img.addEventListener("load", done); img.addEventListener("error", done); }
+  });
+  if (pending === 0) finish();
 })();

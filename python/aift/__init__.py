@@ -56,8 +56,8 @@ class Trajectory:
         n = len(self.columns)
         values = np.frombuffer(data, dtype="<f8")
         rows = values.size // n if n else 0
-        self._matrix = values.reshape(n, rows).copy()
-        self._matrix.setflags(write=False)
+        # A read-only view of the bytes the run filled (no copy).
+        self._matrix = values.reshape(n, rows)
         self._index = {c: i for i, c in enumerate(self.columns)}
 
     def __getitem__(self, name: str) -> np.ndarray:
@@ -146,13 +146,16 @@ def _scenario(scenario) -> Scenario:
 
 
 def run(scenario=None, method: Optional[str] = None, seed: Optional[int] = None, *,
-        out=None, force: bool = False, calib=None) -> RunResult:
+        out=None, force: bool = False, calib=None, trajectory: bool = True) -> RunResult:
     """Runs one (method, seed) of a scenario (a :class:`Scenario`, a path, or None for the
     default). Nothing touches disk unless ``out`` names a run folder to write (the CLI's files,
     whole or not at all). Methods with a detector calibrate it as the CLI does (``calib``, the
-    scenario's file, or healthy runs cached in ``$AIFT_CACHE_DIR`` / ``~/.cache/aift``)."""
-    summary, names, data = _aift.run(_scenario(scenario), method, seed, _path(out), force, _path(calib))
-    return RunResult(json.loads(summary), Trajectory(names, data), _path(out))
+    scenario's file, or healthy runs cached in ``$AIFT_CACHE_DIR`` / ``~/.cache/aift``).
+    ``trajectory=False`` keeps nothing of the trajectory in memory (``.trajectory`` is None; with
+    ``out`` the file has it): for runs longer than the in-memory bound of 2**27 values."""
+    summary, names, data = _aift.run(_scenario(scenario), method, seed, _path(out), force,
+                                     _path(calib), trajectory)
+    return RunResult(json.loads(summary), Trajectory(names, data) if trajectory else None, _path(out))
 
 
 def table(scenario=None, methods: Optional[Sequence[str]] = None, seeds: int = 20, *,

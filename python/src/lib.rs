@@ -123,10 +123,9 @@ impl PyScenario {
     }
 }
 
-/// A Python value as the text of a `--set KEY=VALUE` value: numbers and booleans in TOML form,
-/// strings as they are (the CLI reads them as TOML, falling back to a bare string), lists and
-/// tuples as TOML arrays.
-fn value_text(value: &Bound<'_, PyAny>, nested: bool) -> PyResult<String> {
+/// A Python value as the text of a `--set KEY=VALUE` value, in TOML: booleans, integers and
+/// floats as such, strings quoted (a Python str is text), lists and tuples as arrays.
+fn value_text(value: &Bound<'_, PyAny>) -> PyResult<String> {
     if value.is_instance_of::<PyBool>() {
         return Ok(if value.extract::<bool>()? {
             "true".into()
@@ -148,23 +147,24 @@ fn value_text(value: &Bound<'_, PyAny>, nested: bool) -> PyResult<String> {
         });
     }
     if value.is_instance_of::<PyString>() {
+        // Always a TOML string: a Python str is text, even when it reads as a number.
         let s: String = value.extract()?;
-        return Ok(if nested {
-            toml::Value::String(s).to_string()
-        } else {
-            s
-        });
+        return Ok(toml::Value::String(s).to_string());
     }
     if value.is_instance_of::<PyList>() || value.is_instance_of::<PyTuple>() {
         let items = value
             .try_iter()?
-            .map(|item| value_text(&item?, true))
+            .map(|item| value_text(&item?))
             .collect::<PyResult<Vec<_>>>()?;
         return Ok(format!("[{}]", items.join(", ")));
     }
+    if let Ok(v) = value.extract::<i64>() {
+        // numpy integers and other objects with __index__.
+        return Ok(v.to_string());
+    }
     if let Ok(v) = value.extract::<f64>() {
         // numpy scalars and other numbers.
-        return value_text(&PyFloat::new(value.py(), v).into_any(), nested);
+        return value_text(&PyFloat::new(value.py(), v).into_any());
     }
     Err(bad(format!(
         "a scenario value must be a bool, number, string or list, not {}",
@@ -209,7 +209,7 @@ impl PyScenario {
         key: &str,
         value: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, Self>> {
-        let text = value_text(value, false)?;
+        let text = value_text(value)?;
         let next = {
             let this = slf.borrow();
             let mut overrides = this.overrides.clone();
@@ -321,20 +321,31 @@ impl Observer for Interrupt {
 /// little-endian f64 bytes, column after column.
 type RunOutput<'py> = (String, Vec<String>, Bound<'py, PyBytes>);
 
-fn columns_bytes<'py>(py: Python<'py>, columns: &TrajectoryColumns) -> Bound<'py, PyBytes> {
-    let mut bytes = Vec::with_capacity(columns.rows() * columns.names().len() * 8);
-    for column in columns.columns() {
-        for v in column {
-            bytes.extend_from_slice(&v.to_le_bytes());
+fn columns_bytes<'py>(
+    py: Python<'py>,
+    columns: Option<&TrajectoryColumns>,
+) -> PyResult<Bound<'py, PyBytes>> {
+    let Some(columns) = columns else {
+        return Ok(PyBytes::new(py, &[]));
+    };
+    let len = columns.rows() * columns.names().len() * 8;
+    PyBytes::new_with(py, len, |buffer| {
+        for (chunk, v) in buffer
+            .chunks_exact_mut(8)
+            .zip(columns.columns().iter().flatten())
+        {
+            chunk.copy_from_slice(&v.to_le_bytes());
         }
-    }
-    PyBytes::new(py, &bytes)
+        Ok(())
+    })
 }
 
 /// Runs a scenario: in memory, or into the run folder `out` (the CLI's files, written whole
-/// or not at all).
+/// or not at all: an interrupted run leaves no folder). With `trajectory = false` nothing of
+/// the trajectory is held in memory (with `out`, the file has it).
 #[pyfunction]
-#[pyo3(signature = (scenario, method = None, seed = None, out = None, force = false, calib = None))]
+#[pyo3(signature = (scenario, method = None, seed = None, out = None, force = false, calib = None, trajectory = true))]
+#[allow(clippy::too_many_arguments)]
 fn run<'py>(
     py: Python<'py>,
     scenario: &PyScenario,
@@ -343,6 +354,7 @@ fn run<'py>(
     out: Option<PathBuf>,
     force: bool,
     calib: Option<PathBuf>,
+    trajectory: bool,
 ) -> PyResult<RunOutput<'py>> {
     let mut setup = scenario.prepare(py)?;
     let method = match method {
@@ -353,13 +365,18 @@ fn run<'py>(
     setup.loaded.scenario.precision.method = method;
     setup.loaded.scenario.seed = seed;
     let sc = setup.scenario();
-    let mut columns =
-        TrajectoryColumns::new(&setup.layout, sc.ticks(), sc.record_every).map_err(|m| {
-            bad(format!(
-                "{}: `record_every` {m}",
-                setup.loaded.path.display()
-            ))
-        })?;
+    let mut columns = if trajectory {
+        Some(
+            TrajectoryColumns::new(&setup.layout, sc.ticks(), sc.record_every).map_err(|m| {
+                bad(format!(
+                    "{}: `record_every`: {m} (or pass trajectory=False)",
+                    setup.loaded.path.display()
+                ))
+            })?,
+        )
+    } else {
+        None
+    };
     let staged = match &out {
         Some(dir) => Some(Staged::begin(dir, OutputKind::Folder, force).map_err(file_err)?),
         None => None,
@@ -369,23 +386,35 @@ fn run<'py>(
         interrupted: Cell::new(false),
     };
     let result = py.detach(|| {
-        let mut both = aift::scenario::Observers(vec![&mut columns, &mut interrupt]);
-        match staged {
+        let mut observers: Vec<&mut dyn Observer> = vec![&mut interrupt];
+        if let Some(c) = columns.as_mut() {
+            observers.push(c);
+        }
+        let mut all = aift::scenario::Observers(observers);
+        match &staged {
             Some(staged) => {
-                run_files::run_into_with(staged, &setup, method, seed, cal.as_ref(), &mut both)
+                run_files::run_staged(staged, &setup, method, seed, cal.as_ref(), &mut all)
                     .map_err(report_err)
             }
-            None => aift::scenario::run(&setup, method, seed, cal.as_ref(), &mut both)
+            None => aift::scenario::run(&setup, method, seed, cal.as_ref(), &mut all)
                 .map_err(|e| scenario_err(e, &[])),
         }
     })?;
     if interrupt.interrupted.get() {
+        // The staged folder is dropped: nothing appears.
         return Err(PyKeyboardInterrupt::new_err("aift.run interrupted"));
+    }
+    if let Some(staged) = staged {
+        staged.commit().map_err(file_err)?;
     }
     let summary = serde_json::to_string(&run_files::summary_json(&setup, &result))
         .expect("a summary serialises");
-    let bytes = columns_bytes(py, &columns);
-    Ok((summary, columns.names().to_vec(), bytes))
+    let names = columns
+        .as_ref()
+        .map(|c| c.names().to_vec())
+        .unwrap_or_default();
+    let bytes = columns_bytes(py, columns.as_ref())?;
+    Ok((summary, names, bytes))
 }
 
 /// Every method over seeds `seed .. seed + seeds`; returns table.json's text. `out` writes the
@@ -460,7 +489,19 @@ fn run_campaign(
     out: Option<PathBuf>,
     force: bool,
 ) -> PyResult<String> {
-    let path = path.unwrap_or_else(campaign::bundled_campaign_path);
+    let path = match path {
+        Some(p) => p,
+        None => {
+            let p = campaign::bundled_campaign_path();
+            if !p.is_file() {
+                return Err(bad(format!(
+                    "the bundled campaign {} is not here; pass a campaign file",
+                    p.display()
+                )));
+            }
+            p
+        }
+    };
     let shard = match shard {
         Some(s) => Shard::parse(s).map_err(|e| bad(format!("shard: {e}")))?,
         None => Shard::WHOLE,
@@ -495,13 +536,7 @@ fn run_campaign(
             campaign_files::write_campaign(staged.path(), &campaign, &records)
                 .map_err(report_err)?;
         } else {
-            aift::report::write_atomic(
-                &staged.path().join(campaign_files::RECORDS),
-                serde_json::to_string(&records)
-                    .expect("records serialise")
-                    .as_bytes(),
-            )
-            .map_err(report_err)?;
+            campaign_files::write_shard(staged.path(), &records).map_err(report_err)?;
         }
         staged.commit().map_err(file_err)?;
     }

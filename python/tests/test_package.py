@@ -84,7 +84,10 @@ def test_scenario_set_to_toml_round_trip(repo):
     sc = aift.Scenario.load(repo / "assets/scenarios/paper_healthy.toml")
     sc.set("duration", 2.5).set("controller.prior_position_precision", 1e9).set("precision.method", "bayes")
     assert sc.duration == 2.5 and sc.method == "bayes"
-    assert sc.overrides == ["duration=2.5", "controller.prior_position_precision=1000000000.0", "precision.method=bayes"]
+    assert sc.overrides == ["duration=2.5", "controller.prior_position_precision=1000000000.0", 'precision.method="bayes"']
+    # A Python str stays text even when it reads as a number; numpy integers are integers.
+    assert 'name = "2024"' in sc.copy().set("name", "2024").to_toml()
+    assert "record_every = 3" in sc.copy().set("record_every", np.int64(3)).to_toml()
     back = aift.Scenario.from_toml(sc.to_toml(), base_dir=repo / "assets/scenarios")
     assert back.to_toml() == sc.to_toml()
     # Lists, booleans and indices reach the same keys as --set.
@@ -275,3 +278,18 @@ onsets = ["moving"]
     assert (tmp_path / "whole" / "report.html").read_bytes() == (tmp_path / "merged" / "report.html").read_bytes()
     with pytest.raises(aift.BadInput, match="not a run, table or campaign folder"):
         aift.report(tmp_path)
+
+
+def test_an_interrupted_run_leaves_no_folder(tmp_path):
+    import os
+    import signal
+
+    sc = aift.Scenario.default(["duration=300.0", "robot.engine=\"articulated\""])
+    aift.run(sc.copy().set("duration", 0.1), method="no-ft")  # the GP trained, the cache warm
+    timer = threading.Timer(0.5, lambda: os.kill(os.getpid(), signal.SIGINT))
+    timer.start()
+    with pytest.raises(KeyboardInterrupt):
+        aift.run(sc, method="no-ft", out=tmp_path / "run", trajectory=False)
+    timer.cancel()
+    assert not (tmp_path / "run").exists()
+    assert [p.name for p in tmp_path.iterdir()] == []

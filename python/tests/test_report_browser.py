@@ -69,7 +69,7 @@ def open_report(browser, path, shots, name):
     url = path.resolve().as_uri()
     page.goto(url)
     page.wait_for_selector("body[data-plots-drawn]", timeout=30000)
-    expected = page.evaluate("document.querySelectorAll('div.plot').length + document.querySelectorAll('svg.static').length")
+    expected = page.evaluate("document.querySelectorAll('div.plot, svg.static, img.static').length")
     drawn = int(page.get_attribute("body", "data-plots-drawn"))
     failed = int(page.get_attribute("body", "data-plot-errors"))
     page.screenshot(path=str(shots / f"{name}.png"), full_page=False)

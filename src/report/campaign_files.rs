@@ -61,6 +61,16 @@ fn entry(s: &CellSummary) -> String {
     }
 }
 
+/// Writes a shard's records (what `aift merge` reads) into `dir` (which must exist).
+pub fn write_shard(dir: &Path, records: &CampaignRecords) -> Result<(), ReportError> {
+    write_atomic(
+        &dir.join(RECORDS),
+        serde_json::to_string(records)
+            .expect("records serialise")
+            .as_bytes(),
+    )
+}
+
 /// Reads the records of a campaign folder or shard (`DIR/records.json`), for `aift merge`.
 pub fn read_records(dir: &Path) -> Result<CampaignRecords, ReportError> {
     let path = dir.join(RECORDS);

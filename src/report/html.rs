@@ -200,6 +200,7 @@ fn page(title: &str, subtitle: &str, body: &str, data: &Value) -> String {
 </html>
 "#,
         title = esc(title),
+        subtitle = esc(subtitle),
         version = env!("CARGO_PKG_VERSION"),
     )
 }
@@ -571,10 +572,13 @@ fn table_page(dir: &Path) -> Result<String, ReportError> {
         None => body.push_str("<p>(no runs.csv in the folder)</p>\n"),
     }
     let title = format!("Table: {}", doc["scenario"].as_str().unwrap_or("?"));
+    let seeds = doc["seeds"]
+        .as_array()
+        .map(|a| a.len().to_string())
+        .unwrap_or_else(|| "?".into());
     let subtitle = format!(
-        "{} methods x seeds {} | aift {}",
+        "{} methods x {seeds} seeds | aift {}",
         rows.len(),
-        value_html(&doc["seeds"]),
         doc["aift_version"].as_str().unwrap_or("?")
     );
     Ok(page(&title, &subtitle, &body, &json!({"plots": []})))
@@ -638,15 +642,23 @@ fn campaign_page(dir: &Path) -> Result<String, ReportError> {
     body.push_str("</table>\n");
     for arm in &arms {
         let _ = writeln!(body, "<h2 id=\"arm-{}\">{}</h2>", esc(arm), esc(arm));
+        // The heatmap as an image (a data URI: the CSP allows it, and nothing in an SVG shown
+        // as an image runs); only a plain file name is looked up.
+        if arm.contains(['/', '\\']) || arm.contains("..") || arm.is_empty() {
+            return Err(bad(
+                &dir.join(super::campaign_files::CAMPAIGN_JSON),
+                format!("`cells[].arm`: {arm:?} is not a plain name"),
+            ));
+        }
         let heatmap = dir.join(format!("heatmap_{arm}.svg"));
         if let Some(svg) = read_optional(&heatmap)? {
-            let start = svg
-                .find("<svg")
-                .ok_or_else(|| bad(&heatmap, "not an SVG file (no <svg element)".into()))?;
-            let svg = &svg[start..];
-            let svg = svg.replacen("<svg", "<svg class=\"static\"", 1);
-            body.push_str(&svg);
-            body.push('\n');
+            use base64::Engine as _;
+            let data = base64::engine::general_purpose::STANDARD.encode(svg.as_bytes());
+            let _ = writeln!(
+                body,
+                "<img class=\"static\" alt=\"heatmap of {}\" src=\"data:image/svg+xml;base64,{data}\">",
+                esc(arm)
+            );
         }
         body.push_str("<table><tr><th>cell</th>");
         for m in &methods {
@@ -715,7 +727,7 @@ fn campaign_page(dir: &Path) -> Result<String, ReportError> {
             "<h3 id=\"cell-{index}\">{} / {} ({}{})</h3><table><tr><th>method</th>",
             esc(c["arm"].as_str().unwrap_or("?")),
             esc(c["label"].as_str().unwrap_or("?")),
-            esc(&value_html(&c["kind"])),
+            value_html(&c["kind"]),
             c["onset"]
                 .as_str()
                 .map(|o| format!(", onset {}", esc(o)))
@@ -764,9 +776,9 @@ fn campaign_page(dir: &Path) -> Result<String, ReportError> {
         "{} cells x {} methods x {} seeds | fingerprint {} | aift {}",
         cells.len(),
         methods.len(),
-        value_html(&doc["seeds"]),
-        esc(doc["fingerprint"].as_str().unwrap_or("?")),
-        esc(doc["aift_version"].as_str().unwrap_or("?"))
+        doc["seeds"],
+        doc["fingerprint"].as_str().unwrap_or("?"),
+        doc["aift_version"].as_str().unwrap_or("?")
     );
     Ok(page(&title, &subtitle, &body, &json!({"plots": []})))
 }

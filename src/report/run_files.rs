@@ -29,8 +29,9 @@ pub const PLOT_FREE_ENERGY: &str = "free_energy.svg";
 /// The run's page (`report.html`).
 pub const REPORT: &str = super::html::REPORT;
 
-/// Rows the plots are drawn from (the run is decimated to at most this many as it goes).
-pub const PLOT_ROWS: usize = 4000;
+/// Rows the plots and report.html are drawn from (the run is decimated to at most this many as
+/// it goes).
+pub const PLOT_ROWS: usize = super::html::REPORT_ROWS;
 
 /// Version of summary.json's layout.
 pub const SUMMARY_FORMAT: u32 = 2;
@@ -144,10 +145,8 @@ pub fn write_run(
     if let Some(cal) = calibration {
         write_atomic(&dir.join(CALIBRATION), cal.to_json().as_bytes())?;
     }
-    write_atomic(
-        &dir.join(RESOLVED),
-        resolved_scenario(setup, method, result.seed, calibration.is_some()).as_bytes(),
-    )?;
+    let resolved = resolved_scenario(setup, method, result.seed, calibration.is_some());
+    write_atomic(&dir.join(RESOLVED), resolved.as_bytes())?;
     let fault = setup
         .faults
         .iter()
@@ -160,7 +159,6 @@ pub fn write_run(
     let summary_doc = summary_json(setup, result);
     let summary = serde_json::to_string_pretty(&summary_doc).expect("a summary always serialises");
     write_atomic(&dir.join(SUMMARY), summary.as_bytes())?;
-    let resolved = fsio::read_text(&dir.join(RESOLVED), fsio::MAX_SCENARIO_BYTES << 2)?;
     let page = super::html::run_page(&summary_doc, Some(&resolved), plots_rows, trajectory_rows);
     write_atomic(&dir.join(super::html::REPORT), page.as_bytes())
 }
@@ -175,19 +173,23 @@ pub fn run_into(
     seed: u64,
     calibration: Option<&Calibration>,
 ) -> Result<RunResult, ReportError> {
-    run_into_with(
-        staged,
+    let result = run_staged(
+        &staged,
         setup,
         method,
         seed,
         calibration,
         &mut scenario::NoObserver,
-    )
+    )?;
+    staged.commit()?;
+    Ok(result)
 }
 
-/// [`run_into`], with one more observer of the caller's watching the run.
-pub fn run_into_with(
-    staged: Staged,
+/// [`run_into`] without the commit, and with one more observer of the caller's watching the run:
+/// every file is written into `staged`, and the caller commits it (or drops it, and nothing
+/// appears: after an interrupted run, say).
+pub fn run_staged(
+    staged: &Staged,
     setup: &RunSetup,
     method: Method,
     seed: u64,
@@ -205,7 +207,13 @@ pub fn run_into_with(
         file,
         setup.scenario().record_every,
     );
-    let mut plot_rows = TrajectoryRecorder::bounded(&setup.layout, PLOT_ROWS);
+    // The rows of the trajectory file (every `record_every`-th tick), decimated as a reader of
+    // that file decimates them: `aift report` on the folder draws the same page.
+    let mut plot_rows = TrajectoryRecorder::bounded_with_stride(
+        &setup.layout,
+        PLOT_ROWS,
+        setup.scenario().record_every,
+    );
     let result = scenario::run(
         setup,
         method,
@@ -232,7 +240,6 @@ pub fn run_into_with(
         trajectory_rows,
         calibration,
     )?;
-    staged.commit()?;
     Ok(result)
 }
 

@@ -206,9 +206,33 @@ impl TrajectoryRecorder {
 
     /// Keeps at most `max_rows` rows (>= 2), decimating as the run goes (for plots).
     pub fn bounded(layout: &ChannelLayout, max_rows: usize) -> Self {
+        Self::bounded_with_stride(layout, max_rows, 1)
+    }
+
+    /// Records every `every`-th tick and keeps at most `max_rows` rows (>= 2), decimating as
+    /// the run goes.
+    pub fn bounded_with_stride(layout: &ChannelLayout, max_rows: usize, every: u64) -> Self {
         Self {
             max_rows: Some(max_rows.max(2)),
-            ..Self::new(layout)
+            ..Self::with_stride(layout, every)
+        }
+    }
+
+    /// Adds a row; past the row bound every other row is dropped and the stride doubles. The
+    /// one rule both a run's recorder and [`Self::read_csv_decimated`] follow, so that they
+    /// keep the same rows.
+    fn push_decimated(&mut self, row: Vec<f64>) {
+        self.rows.push(row);
+        if let Some(max) = self.max_rows
+            && self.rows.len() >= max
+        {
+            let mut keep = 0;
+            for i in (0..self.rows.len()).step_by(2) {
+                self.rows.swap(keep, i);
+                keep += 1;
+            }
+            self.rows.truncate(keep);
+            self.every *= 2;
         }
     }
 
@@ -279,7 +303,10 @@ impl TrajectoryRecorder {
     /// [`Self::bounded`] does while a run goes), so memory stays bounded however long the file.
     /// Returns the rows kept and the number of rows in the file.
     pub fn read_csv_decimated(path: &Path, max_rows: usize) -> Result<(Self, u64), FsError> {
-        use std::io::BufRead;
+        use std::io::{BufRead, Read};
+        /// Longest line and most columns read (a trajectory row of 10,000 columns is ~250 kB).
+        const MAX_LINE_BYTES: u64 = 4 << 20;
+        const MAX_COLUMNS: usize = 100_000;
         let (file, _) = fsio::open_bounded(path, fsio::MAX_TRAJECTORY_BYTES)?;
         let bad = |line: u64, what: &str| FsError::BadOutput {
             path: path.to_path_buf(),
@@ -287,34 +314,57 @@ impl TrajectoryRecorder {
         };
         let mut reader = std::io::BufReader::with_capacity(1 << 16, file);
         let mut line = String::new();
-        let read = |reader: &mut std::io::BufReader<_>, line: &mut String| {
+        let mut bytes = 0u64;
+        let mut read = |reader: &mut std::io::BufReader<_>, line: &mut String, number: u64| {
             line.clear();
-            reader.read_line(line).map_err(|source| FsError::Read {
-                path: path.to_path_buf(),
-                source,
-            })
+            let n = reader
+                .by_ref()
+                .take(MAX_LINE_BYTES + 1)
+                .read_line(line)
+                .map_err(|source| FsError::Read {
+                    path: path.to_path_buf(),
+                    source,
+                })? as u64;
+            if n > MAX_LINE_BYTES {
+                return Err(bad(number, "line longer than 4 MiB"));
+            }
+            bytes += n;
+            if bytes > fsio::MAX_TRAJECTORY_BYTES {
+                return Err(FsError::TooLarge {
+                    path: path.to_path_buf(),
+                    size: bytes,
+                    limit: fsio::MAX_TRAJECTORY_BYTES,
+                });
+            }
+            Ok(n)
         };
-        if read(&mut reader, &mut line)? == 0 {
+        if read(&mut reader, &mut line, 1)? == 0 {
             return Err(bad(1, "no header"));
         }
         let header: Vec<String> = line.trim_end().split(',').map(String::from).collect();
+        if header.len() > MAX_COLUMNS {
+            return Err(bad(1, "more than 100000 columns"));
+        }
         let n_joints = header.iter().filter(|h| h.starts_with("mu_p")).count();
         let schema = TrajectorySchema {
             columns: header.clone(),
             n_joints,
         };
-        let max_rows = max_rows.max(2);
         let mut out = Self {
             header,
             rows: Vec::new(),
             n_joints,
             schema,
             every: 1,
-            max_rows: Some(max_rows),
+            max_rows: Some(max_rows.max(2)),
         };
         let mut total = 0u64;
-        while read(&mut reader, &mut line)? > 0 {
-            let number = total + 2;
+        let mut number = 1u64;
+        loop {
+            number += 1;
+            if read(&mut reader, &mut line, number)? == 0 {
+                break;
+            }
             let text = line.trim_end();
             if text.is_empty() {
                 continue;
@@ -328,16 +378,7 @@ impl TrajectoryRecorder {
                 if row.len() != out.header.len() {
                     return Err(bad(number, "wrong number of columns"));
                 }
-                out.rows.push(row);
-                if out.rows.len() >= max_rows {
-                    let mut keep = 0;
-                    for i in (0..out.rows.len()).step_by(2) {
-                        out.rows.swap(keep, i);
-                        keep += 1;
-                    }
-                    out.rows.truncate(keep);
-                    out.every *= 2;
-                }
+                out.push_decimated(row);
             }
             total += 1;
         }
@@ -352,18 +393,7 @@ impl Observer for TrajectoryRecorder {
         }
         let mut row = Vec::with_capacity(self.schema.len());
         self.schema.row(r, &mut row);
-        self.rows.push(row);
-        if let Some(max) = self.max_rows
-            && self.rows.len() >= max
-        {
-            let mut keep = 0;
-            for i in (0..self.rows.len()).step_by(2) {
-                self.rows.swap(keep, i);
-                keep += 1;
-            }
-            self.rows.truncate(keep);
-            self.every *= 2;
-        }
+        self.push_decimated(row);
     }
 }
 

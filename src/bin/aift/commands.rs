@@ -209,13 +209,7 @@ fn campaign(args: CampaignArgs) -> Result<(), Failure> {
         report::campaign_files::write_campaign(staged.path(), &campaign, &records)
             .map_err(report_failure)?;
     } else {
-        report::write_atomic(
-            &staged.path().join(report::campaign_files::RECORDS),
-            serde_json::to_string(&records)
-                .expect("records serialise")
-                .as_bytes(),
-        )
-        .map_err(report_failure)?;
+        report::campaign_files::write_shard(staged.path(), &records).map_err(report_failure)?;
     }
     staged
         .commit()
