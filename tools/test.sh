@@ -23,7 +23,8 @@ apt_install() {
 }
 
 cargo test --release
-cargo build --release --bin aift
+# The tests built target/release/aift; build it only if they did not.
+[ -x target/release/aift ] || cargo build --release --bin aift
 
 [ -x /usr/bin/chromium ] || apt_install chromium
 python3 -m venv --help >/dev/null 2>&1 || apt_install python3-venv

@@ -37,6 +37,10 @@ __all__ = [
     "campaign",
     "report",
     "merge",
+    "check_urdf",
+    "init",
+    "calibrate",
+    "train_gp",
     "methods",
     "schema",
     "__version__",
@@ -188,6 +192,32 @@ def merge(shards: Sequence, out, *, force: bool = False) -> Rows:
     into the campaign folder ``out``, as ``aift merge``: campaign.json's document and cells."""
     doc = _aift.merge([os.fspath(s) for s in shards], os.fspath(out), force)
     return Rows(json.loads(doc), "cells")
+
+
+def check_urdf(path, ee: Optional[str] = None, *, balance_inertia: bool = False) -> dict:
+    """The arm of a URDF file, as ``aift check-urdf --json`` prints it."""
+    return json.loads(_aift.check_urdf(os.fspath(path), ee, balance_inertia))
+
+
+def init(urdf, *, name: str = "scenario", ee: Optional[str] = None, balance_inertia: bool = False) -> Scenario:
+    """A scenario derived from any URDF, as ``aift init`` writes it (controller gains from the
+    arm's inertia, targets inside its limits, a camera that sees it); the URDF is named by its
+    absolute path, so ``to_toml()`` can be saved anywhere."""
+    path = os.path.abspath(os.fspath(urdf))
+    text = _aift.init_scenario(path, name, ee, balance_inertia, path)
+    return Scenario.from_toml(text, base_dir=os.path.dirname(path))
+
+
+def calibrate(scenario, out, *, runs: Optional[int] = None) -> dict:
+    """Writes the detector calibration (``runs`` healthy runs) to the file ``out``, as
+    ``aift calibrate``; pass it to ``run(..., calib=out)``. Returns its fingerprint, runs, ticks."""
+    return json.loads(_aift.calibrate_to(_scenario(scenario), os.fspath(out), runs))
+
+
+def train_gp(scenario, out, *, points: Optional[int] = None) -> dict:
+    """Trains the camera GP and writes it to the file ``out``, as ``aift train-gp``; returns the
+    hyperparameters, the log marginal likelihood and the held-out error (m)."""
+    return json.loads(_aift.train_gp_to(_scenario(scenario), os.fspath(out), points))
 
 
 def methods() -> List[str]:

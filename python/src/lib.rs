@@ -772,6 +772,123 @@ fn merge(py: Python<'_>, shards: Vec<PathBuf>, out: PathBuf, force: bool) -> PyR
     aift::fsio::read_text(&path, aift::fsio::MAX_CALIBRATION_BYTES).map_err(file_err)
 }
 
+/// The arm of a URDF file as `aift check-urdf --json` prints it (JSON text).
+#[pyfunction]
+#[pyo3(signature = (path, ee = None, balance_inertia = false))]
+fn check_urdf(path: PathBuf, ee: Option<String>, balance_inertia: bool) -> PyResult<String> {
+    let model = aift::plant::load_urdf_with(&path, &aift::plant::UrdfOptions { balance_inertia })
+        .map_err(|e| bad(aift::error_chain(&e)))?;
+    if let Some(ee) = ee.as_deref().filter(|ee| model.link(ee).is_none()) {
+        return Err(bad(aift::error_chain(&model.unknown_link_error(ee))));
+    }
+    Ok(aift::plant::describe_arm(&model, &path, ee.as_deref()).to_string())
+}
+
+/// A scenario derived from any URDF (as `aift init`): the TOML text, naming the URDF as
+/// `urdf_in_scenario` (default: its path as given).
+#[pyfunction]
+#[pyo3(signature = (urdf, name = "scenario".to_string(), ee = None, balance_inertia = false, urdf_in_scenario = None))]
+fn init_scenario(
+    urdf: PathBuf,
+    name: String,
+    ee: Option<String>,
+    balance_inertia: bool,
+    urdf_in_scenario: Option<String>,
+) -> PyResult<String> {
+    let options = aift::scenario::init::InitOptions {
+        ee_link: ee,
+        balance_inertia,
+        urdf_in_scenario: urdf_in_scenario.unwrap_or_else(|| urdf.display().to_string()),
+        name,
+    };
+    aift::scenario::init::init_scenario(&urdf, &options).map_err(|e| scenario_err(e, &[]))
+}
+
+/// Writes the detector calibration of `runs` healthy runs to the file `out` (as `aift
+/// calibrate`); returns {fingerprint, runs, ticks} as JSON text (the file itself can be large).
+#[pyfunction]
+#[pyo3(signature = (scenario, out, runs = None))]
+fn calibrate_to(
+    py: Python<'_>,
+    scenario: &PyScenario,
+    out: PathBuf,
+    runs: Option<usize>,
+) -> PyResult<String> {
+    let setup = scenario.prepare(py)?;
+    let runs = runs.unwrap_or(setup.scenario().detector.calibration_runs);
+    calibrate::check_size(&setup, runs).map_err(|e| scenario_err(e, &[]))?;
+    let staged = Staged::begin(&out, OutputKind::File, true).map_err(file_err)?;
+    let cal = py
+        .detach(|| calibrate::calibrate(&setup, runs))
+        .map_err(|e| scenario_err(e, &[]))?;
+    aift::fsio::write_atomic(staged.path(), cal.to_json().as_bytes()).map_err(file_err)?;
+    staged.commit().map_err(file_err)?;
+    Ok(serde_json::json!({
+        "fingerprint": cal.fingerprint,
+        "runs": cal.runs,
+        "ticks": cal.ticks,
+    })
+    .to_string())
+}
+
+/// Trains the camera GP of the scenario on `points` points (default: the scenario's) and writes
+/// it to `out` (as `aift train-gp`); returns {hyperparameters, log_marginal_likelihood,
+/// held_out_rms, held_out_max} as JSON text.
+#[pyfunction]
+#[pyo3(signature = (scenario, out, points = None))]
+fn train_gp_to(
+    py: Python<'_>,
+    scenario: &PyScenario,
+    out: PathBuf,
+    points: Option<usize>,
+) -> PyResult<String> {
+    let mut loaded = scenario.loaded.clone();
+    loaded.scenario.gp.model = None;
+    if let Some(p) = points {
+        loaded.scenario.gp.points = p;
+    }
+    let model = loaded.arm_model().map_err(|e| scenario_err(e, &[]))?;
+    let layout =
+        aift::sensors::ChannelLayout::new(model.joints.len(), loaded.scenario.camera.model);
+    loaded
+        .scenario
+        .validate(&layout, &loaded.path)
+        .map_err(|e| scenario_err(e, &[]))?;
+    let staged = Staged::begin(&out, OutputKind::File, true).map_err(file_err)?;
+    let points = loaded.scenario.gp.points;
+    let (gp, fit, held) = py
+        .detach(|| {
+            let (gp, fit) = aift::scenario::train_gp(&loaded, &model, points)?;
+            let mut arm =
+                aift::plant::Arm::new(model.clone(), loaded.scenario.robot.arm_options())?;
+            let camera = aift::sensors::Camera::new(loaded.scenario.camera.clone());
+            let held = aift::gp::evaluate_held_out(
+                &gp,
+                &mut arm,
+                &camera,
+                2000,
+                loaded.scenario.gp.seed.wrapping_add(1),
+            );
+            Ok::<_, ScenarioError>((gp, fit, held))
+        })
+        .map_err(|e| scenario_err(e, &[]))?;
+    aift::fsio::write_atomic(staged.path(), gp.to_json().as_bytes()).map_err(file_err)?;
+    staged.commit().map_err(file_err)?;
+    let h = &gp.hyperparameters;
+    Ok(serde_json::json!({
+        "points": points,
+        "length_scales": h.length_scales,
+        "signal_std": h.signal_std,
+        "noise_std": h.noise_std,
+        "log_marginal_likelihood": fit.log_marginal_likelihood,
+        "evaluations": fit.evaluations,
+        "held_out_rms": held.rms,
+        "held_out_max": held.max,
+        "held_out_points": held.points,
+    })
+    .to_string())
+}
+
 /// Method names, in the CLI's order.
 #[pyfunction]
 fn methods() -> Vec<String> {
@@ -796,6 +913,10 @@ fn _aift(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(run_table, m)?)?;
     m.add_function(wrap_pyfunction!(run_campaign, m)?)?;
     m.add_function(wrap_pyfunction!(report, m)?)?;
+    m.add_function(wrap_pyfunction!(check_urdf, m)?)?;
+    m.add_function(wrap_pyfunction!(init_scenario, m)?)?;
+    m.add_function(wrap_pyfunction!(calibrate_to, m)?)?;
+    m.add_function(wrap_pyfunction!(train_gp_to, m)?)?;
     m.add_function(wrap_pyfunction!(merge, m)?)?;
     m.add_function(wrap_pyfunction!(methods, m)?)?;
     m.add_function(wrap_pyfunction!(schema, m)?)?;

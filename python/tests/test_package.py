@@ -293,3 +293,31 @@ def test_an_interrupted_run_leaves_no_folder(tmp_path):
     timer.cancel()
     assert not (tmp_path / "run").exists()
     assert [p.name for p in tmp_path.iterdir()] == []
+
+
+def test_check_urdf_init_calibrate_train_gp_as_the_cli(tmp_path, cli, repo):
+    urdf = repo / "urdf" / "planar_2dof.urdf"
+    doc = aift.check_urdf(urdf)
+    assert doc == json.loads(cli("check-urdf", urdf, "--json").stdout)
+    with pytest.raises(aift.BadInput, match="nosuchlink"):
+        aift.check_urdf(urdf, ee="nosuchlink")
+    # init: the same scenario as `aift init`, but for the URDF's path.
+    sc = aift.init(urdf, name="mine")
+    cli("init", "--urdf", urdf, "--out", tmp_path / "mine.toml")
+    cli_sc = aift.Scenario.load(tmp_path / "mine.toml")
+    strip = lambda t: "\n".join(l for l in t.splitlines() if not l.startswith("urdf ="))
+    assert strip(sc.to_toml()) == strip(cli_sc.to_toml())
+    r = aift.run(sc.copy().set("duration", 1.0), method="no-ft")
+    assert r.summary["outcome"] == "completed"
+    # calibrate and train_gp write the files the CLI writes, bit for bit.
+    short = aift.Scenario.default(["duration=2.0"])
+    info = aift.calibrate(short, tmp_path / "cal.json", runs=3)
+    cli("calibrate", "--set", "duration=2.0", "--runs", "3", "--out", tmp_path / "cal_cli.json")
+    assert (tmp_path / "cal.json").read_bytes() == (tmp_path / "cal_cli.json").read_bytes()
+    assert info["runs"] == 3 and info["ticks"] == 2000
+    r1 = aift.run(short, method="pl-detect", calib=tmp_path / "cal.json")
+    assert r1.summary["outcome"] == "completed"
+    gp = aift.train_gp(short, tmp_path / "gp.json", points=60)
+    cli("train-gp", "--set", "duration=2.0", "--points", "60", "--out", tmp_path / "gp_cli.json")
+    assert (tmp_path / "gp.json").read_bytes() == (tmp_path / "gp_cli.json").read_bytes()
+    assert gp["points"] == 60 and gp["held_out_rms"] > 0

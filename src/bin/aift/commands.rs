@@ -815,49 +815,7 @@ fn check_urdf(args: CheckUrdfArgs) -> Result<(), Failure> {
         say!(args.json, "warning: {w}");
     }
     if args.json {
-        let joints: Vec<_> = model
-            .joints
-            .iter()
-            .map(|j| {
-                let axis = j.axis.into_inner();
-                serde_json::json!({
-                    "name": j.name,
-                    "kind": j.kind.name(),
-                    "parent": model.bodies[j.parent_body].link,
-                    "child": model.bodies[j.child_body].link,
-                    "axis": [axis.x, axis.y, axis.z],
-                    "limits": j.limits.map(|(lo, hi)| [lo, hi]),
-                    "effort": j.effort,
-                    "damping": j.damping,
-                    "friction": j.friction,
-                })
-            })
-            .collect();
-        let links: Vec<_> = model
-            .links
-            .iter()
-            .map(|l| {
-                serde_json::json!({
-                    "name": l.name,
-                    "mass": if l.has_inertial { Some(l.mass) } else { None },
-                    "body": model.bodies[l.body].link,
-                })
-            })
-            .collect();
-        let ee = match &args.ee {
-            Some(ee) => Some(ee.as_str()),
-            None => model.link("ee").map(|_| "ee"),
-        };
-        let doc = serde_json::json!({
-            "format_version": 1,
-            "urdf": args.path,
-            "name": model.name,
-            "joints": joints,
-            "links": links,
-            "total_mass": model.total_mass(),
-            "end_effector": ee,
-            "warnings": model.warnings,
-        });
+        let doc = plant::describe_arm(&model, &args.path, args.ee.as_deref());
         println!("{doc}");
     }
     Ok(())
