@@ -9,16 +9,10 @@
 mod common;
 
 use std::path::Path;
-use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 
-fn aift(args: &[&str], dir: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_aift"))
-        .args(args)
-        .current_dir(dir)
-        .env("AIFT_CACHE_DIR", "off")
-        .output()
-        .unwrap()
+fn aift(args: &[&str], dir: &std::path::Path) -> std::process::Output {
+    common::aift_in(args, dir)
 }
 
 /// Runs a command that must be refused: exit 2 within `limit`, stderr containing every needle,

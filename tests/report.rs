@@ -4,20 +4,13 @@
 
 mod common;
 
-use std::process::Command;
-
 use aift::report::html::{self, FolderKind};
 use aift::report::run_files;
 use aift::scenario::{Method, TrajectoryRecorder};
 use common::{aift_ok, setup, tiny_campaign};
 
 fn aift(args: &[&str], dir: &std::path::Path) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_aift"))
-        .args(args)
-        .current_dir(dir)
-        .env("AIFT_CACHE_DIR", "off")
-        .output()
-        .unwrap()
+    common::aift_in(args, dir)
 }
 
 /// Everything a page refers to is inside it: no script or style from elsewhere, no URL but

@@ -52,22 +52,23 @@ fn scenario_err(error: ScenarioError, overrides: &[String]) -> PyErr {
     bad(error.message(overrides))
 }
 
-fn file_err(error: FsError) -> PyErr {
-    let message = aift::error_chain(&error);
-    if error.is_input_error() {
+/// BadInput when the input is at fault, InternalError when the disk or aift is (as the CLI's
+/// exit codes 2 and 1).
+fn classified(error: &dyn std::error::Error, input: bool) -> PyErr {
+    let message = aift::error_chain(error);
+    if input {
         bad(message)
     } else {
         InternalError::new_err(message)
     }
 }
 
+fn file_err(error: FsError) -> PyErr {
+    classified(&error, error.is_input_error())
+}
+
 fn report_err(error: ReportError) -> PyErr {
-    let message = aift::error_chain(&error);
-    if error.is_input_error() {
-        bad(message)
-    } else {
-        InternalError::new_err(message)
-    }
+    classified(&error, error.is_input_error())
 }
 
 fn parse_method(name: &str, what: &str) -> PyResult<Method> {
@@ -842,35 +843,10 @@ fn train_gp_to(
     out: PathBuf,
     points: Option<usize>,
 ) -> PyResult<String> {
-    let mut loaded = scenario.loaded.clone();
-    loaded.scenario.gp.model = None;
-    if let Some(p) = points {
-        loaded.scenario.gp.points = p;
-    }
-    let model = loaded.arm_model().map_err(|e| scenario_err(e, &[]))?;
-    let layout =
-        aift::sensors::ChannelLayout::new(model.joints.len(), loaded.scenario.camera.model);
-    loaded
-        .scenario
-        .validate(&layout, &loaded.path)
-        .map_err(|e| scenario_err(e, &[]))?;
+    let points = points.unwrap_or(scenario.loaded.scenario.gp.points);
     let staged = Staged::begin(&out, OutputKind::File, true).map_err(file_err)?;
-    let points = loaded.scenario.gp.points;
     let (gp, fit, held) = py
-        .detach(|| {
-            let (gp, fit) = aift::scenario::train_gp(&loaded, &model, points)?;
-            let mut arm =
-                aift::plant::Arm::new(model.clone(), loaded.scenario.robot.arm_options())?;
-            let camera = aift::sensors::Camera::new(loaded.scenario.camera.clone());
-            let held = aift::gp::evaluate_held_out(
-                &gp,
-                &mut arm,
-                &camera,
-                2000,
-                loaded.scenario.gp.seed.wrapping_add(1),
-            );
-            Ok::<_, ScenarioError>((gp, fit, held))
-        })
+        .detach(|| aift::scenario::train_gp_fresh(&scenario.loaded, Some(points)))
         .map_err(|e| scenario_err(e, &[]))?;
     aift::fsio::write_atomic(staged.path(), gp.to_json().as_bytes()).map_err(file_err)?;
     staged.commit().map_err(file_err)?;

@@ -39,3 +39,27 @@ def cli(aift_bin):
             raise AssertionError(f"aift {' '.join(map(str, args))} exited {p.returncode}:\n{p.stderr}")
         return p
     return run
+
+
+@pytest.fixture(scope="session")
+def tiny_campaign(repo):
+    """A campaign file's text on the paper arm: freezes while moving on `channels`, 9 s on the
+    articulated engine, one seed (as tests/common/mod.rs's tiny_campaign)."""
+    def text(name, methods=("no-ft", "oracle"), channels=("enc*",)):
+        quoted = lambda xs: "[" + ", ".join(f'"{x}"' for x in xs) + "]"
+        return f"""
+name = "{name}"
+seeds = 1
+methods = {quoted(methods)}
+set = ["robot.engine=\\"articulated\\"", "duration=9.0"]
+channels = {quoted(channels)}
+
+[[arms]]
+name = "paper"
+scenario = "{repo / 'assets/scenarios/paper_healthy.toml'}"
+
+[[kinds]]
+kind = "freeze"
+onsets = ["moving"]
+"""
+    return text

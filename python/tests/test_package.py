@@ -210,22 +210,8 @@ def test_table_equals_the_cli(tmp_path, cli):
     assert rows.to_pandas().shape[0] == 2
 
 
-def test_campaign_equals_the_cli(tmp_path, cli, repo):
-    text = f'''
-name = "py_tiny"
-seeds = 1
-methods = ["no-ft", "oracle"]
-set = ["robot.engine=\\"articulated\\"", "duration=9.0"]
-channels = ["enc*"]
-
-[[arms]]
-name = "paper"
-scenario = "{repo / 'assets/scenarios/paper_healthy.toml'}"
-
-[[kinds]]
-kind = "freeze"
-onsets = ["moving"]
-'''
+def test_campaign_equals_the_cli(tmp_path, cli, tiny_campaign):
+    text = tiny_campaign("py_tiny")
     path = tmp_path / "tiny.toml"
     path.write_text(text)
     rows = aift.campaign(path, out=tmp_path / "py")
@@ -245,22 +231,8 @@ def test_schema_and_methods():
     assert "hybrid" in aift.methods() and "oracle" in aift.methods()
 
 
-def test_shards_merge_to_the_whole_campaign_and_report(tmp_path, repo):
-    text = f'''
-name = "py_shards"
-seeds = 1
-methods = ["no-ft", "oracle"]
-set = ["robot.engine=\\"articulated\\"", "duration=9.0"]
-channels = ["enc*"]
-
-[[arms]]
-name = "paper"
-scenario = "{repo / 'assets/scenarios/paper_healthy.toml'}"
-
-[[kinds]]
-kind = "freeze"
-onsets = ["moving"]
-'''
+def test_shards_merge_to_the_whole_campaign_and_report(tmp_path, tiny_campaign):
+    text = tiny_campaign("py_shards")
     path = tmp_path / "c.toml"
     path.write_text(text)
     whole = aift.campaign(path, out=tmp_path / "whole")

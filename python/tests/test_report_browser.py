@@ -14,25 +14,9 @@ CHROMIUM = os.environ.get("AIFT_CHROMIUM", "/usr/bin/chromium")
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
          "--disable-background-networking", "--disable-component-update", "--disable-sync"]
 
-CAMPAIGN = '''
-name = "browser_tiny"
-seeds = 1
-methods = ["no-ft", "pl-always", "oracle"]
-set = ["robot.engine=\\"articulated\\"", "duration=9.0"]
-channels = ["enc*", "cam"]
-
-[[arms]]
-name = "paper"
-scenario = "{scenario}"
-
-[[kinds]]
-kind = "freeze"
-onsets = ["moving"]
-'''
-
 
 @pytest.fixture(scope="module")
-def folders(tmp_path_factory, aift_bin, repo):
+def folders(tmp_path_factory, aift_bin, tiny_campaign):
     import subprocess
 
     base = tmp_path_factory.mktemp("reports")
@@ -45,7 +29,8 @@ def folders(tmp_path_factory, aift_bin, repo):
     aift("run", "--method", "pl-detect", "--out", base / "run")
     aift("table", "--set", "duration=9.0", "--methods", "no-ft,pl-always,oracle", "--seeds", "3",
          "--out", base / "table")
-    (base / "c.toml").write_text(CAMPAIGN.format(scenario=repo / "assets/scenarios/paper_healthy.toml"))
+    (base / "c.toml").write_text(tiny_campaign("browser_tiny", methods=("no-ft", "pl-always", "oracle"),
+                                              channels=("enc*", "cam")))
     aift("campaign", base / "c.toml", "--out", base / "campaign")
     return base
 

@@ -179,14 +179,19 @@ pub fn min_between(
         .fold(f64::INFINITY, f64::min)
 }
 
-/// Runs the `aift` binary in `dir` (calibration cache off) and asserts it succeeded.
-pub fn aift_ok(args: &[&str], dir: &std::path::Path) -> std::process::Output {
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_aift"))
+/// Runs the `aift` binary in `dir` (calibration cache off).
+pub fn aift_in(args: &[&str], dir: &std::path::Path) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_aift"))
         .args(args)
         .current_dir(dir)
         .env("AIFT_CACHE_DIR", "off")
         .output()
-        .unwrap();
+        .unwrap()
+}
+
+/// Runs the `aift` binary in `dir` (calibration cache off) and asserts it succeeded.
+pub fn aift_ok(args: &[&str], dir: &std::path::Path) -> std::process::Output {
+    let out = aift_in(args, dir);
     assert!(
         out.status.success(),
         "{args:?}: {}",

@@ -665,32 +665,12 @@ fn calibrate_cmd(args: CalibrateArgs) -> Result<(), Failure> {
 
 fn train_gp(args: TrainGpArgs) -> Result<(), Failure> {
     // Trains from scratch even if the scenario names a saved model.
-    let mut loaded = load(&args.scenario)?;
-    loaded.scenario.gp.model = None;
-    if let Some(p) = args.points {
-        loaded.scenario.gp.points = p;
-    }
-    let model = loaded.arm_model().map_err(bad_input)?;
-    let layout =
-        aift::sensors::ChannelLayout::new(model.joints.len(), loaded.scenario.camera.model);
-    loaded
-        .scenario
-        .validate(&layout, &loaded.path)
-        .map_err(bad_input)?;
+    let loaded = load(&args.scenario)?;
     let staged = stage(&args.out, OutputKind::File, true)?;
-    let points = loaded.scenario.gp.points;
+    let points = args.points.unwrap_or(loaded.scenario.gp.points);
     let start = std::time::Instant::now();
-    let (gp, fit) = scenario::train_gp(&loaded, &model, points).map_err(bad_input)?;
+    let (gp, fit, held) = scenario::train_gp_fresh(&loaded, args.points).map_err(bad_input)?;
     let seconds = start.elapsed().as_secs_f64();
-    let mut arm = Arm::new(model, loaded.scenario.robot.arm_options()).map_err(bad_input)?;
-    let camera = aift::sensors::Camera::new(loaded.scenario.camera.clone());
-    let held = aift::gp::evaluate_held_out(
-        &gp,
-        &mut arm,
-        &camera,
-        2000,
-        loaded.scenario.gp.seed.wrapping_add(1),
-    );
     std::fs::write(staged.path(), gp.to_json()).map_err(|source| {
         file_failure(FsError::Write {
             path: args.out.clone(),
