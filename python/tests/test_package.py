@@ -293,3 +293,21 @@ def test_check_urdf_init_calibrate_train_gp_as_the_cli(tmp_path, cli, repo):
     cli("train-gp", "--set", "duration=2.0", "--points", "60", "--out", tmp_path / "gp_cli.json")
     assert (tmp_path / "gp.json").read_bytes() == (tmp_path / "gp_cli.json").read_bytes()
     assert gp["points"] == 60 and gp["held_out_rms"] > 0
+
+
+def test_type_stub_names_what_the_native_module_has():
+    import ast
+    import pathlib
+    from aift import _aift
+
+    stub = pathlib.Path(aift.__file__).with_name("_aift.pyi")
+    tree = ast.parse(stub.read_text())
+    stubbed = {n.name for n in tree.body if isinstance(n, (ast.FunctionDef, ast.ClassDef))}
+    stubbed |= {t.id for n in tree.body if isinstance(n, ast.AnnAssign) for t in [n.target]}
+    native = {n for n in dir(_aift) if not n.startswith("_") or n == "__version__"}
+    assert stubbed == native, (stubbed ^ native)
+    for cls in ["Scenario", "Sim"]:
+        node = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == cls)
+        names = {n.name for n in node.body if isinstance(n, ast.FunctionDef)} - {"__init__"}
+        have = {n for n in dir(getattr(_aift, cls)) if not n.startswith("_")}
+        assert names == have, (cls, names ^ have)
