@@ -97,6 +97,10 @@ struct PyScenario {
     source: Source,
     overrides: Vec<String>,
     loaded: LoadedScenario,
+    /// The prepared setup (arm, GP), made by the first run and reused by the next ones until
+    /// the scenario changes: the CLI's table prepares once for all its seeds too. A GP trained
+    /// from the scenario's own seed is the same however often it is trained.
+    prepared: std::sync::Arc<std::sync::Mutex<Option<RunSetup>>>,
 }
 
 impl PyScenario {
@@ -113,14 +117,21 @@ impl PyScenario {
             source,
             overrides,
             loaded,
+            prepared: Default::default(),
         })
     }
 
     /// The scenario prepared for runs (arm, layout, GP), with the GIL released.
     fn prepare(&self, py: Python<'_>) -> PyResult<RunSetup> {
+        if let Some(setup) = self.prepared.lock().expect("not poisoned").as_ref() {
+            return Ok(setup.clone());
+        }
         let loaded = self.loaded.clone();
-        py.detach(|| RunSetup::prepare(loaded))
-            .map_err(|e| scenario_err(e, &self.overrides))
+        let setup = py
+            .detach(|| RunSetup::prepare(loaded))
+            .map_err(|e| scenario_err(e, &self.overrides))?;
+        *self.prepared.lock().expect("not poisoned") = Some(setup.clone());
+        Ok(setup)
     }
 }
 

@@ -311,3 +311,17 @@ def test_type_stub_names_what_the_native_module_has():
         names = {n.name for n in node.body if isinstance(n, ast.FunctionDef)} - {"__init__"}
         have = {n for n in dir(getattr(_aift, cls)) if not n.startswith("_")}
         assert names == have, (cls, names ^ have)
+
+
+def test_prepared_setup_is_reused_until_the_scenario_changes():
+    sc = aift.Scenario.default(["duration=2.0"])
+    a = aift.run(sc, method="pl-always", seed=2)
+    b = aift.run(sc, method="pl-always", seed=2)  # the arm and GP prepared once, reused
+    for name in a.trajectory.columns:
+        assert_same_bits(a.trajectory[name], b.trajectory[name], name)
+    fresh = aift.run(aift.Scenario.default(["duration=2.0"]), method="pl-always", seed=2)
+    assert_same_bits(a.trajectory["mu1"], fresh.trajectory["mu1"], "mu1")
+    # A change (fewer GP points) is seen by the next run, not hidden by the reuse.
+    sc.set("gp.points", 50)
+    c = aift.run(sc, method="pl-always", seed=2)
+    assert not np.array_equal(a.trajectory["mu1"], c.trajectory["mu1"])
