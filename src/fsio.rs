@@ -406,6 +406,21 @@ impl Staged {
         &self.target
     }
 
+    /// Writes `bytes` as the staged file and moves it into place (a file output written in
+    /// one piece); a write error names the target.
+    pub fn commit_bytes(self, bytes: &[u8]) -> Result<(), FsError> {
+        debug_assert_eq!(
+            self.kind,
+            OutputKind::File,
+            "commit_bytes is for file outputs"
+        );
+        std::fs::write(&self.temp, bytes).map_err(|source| FsError::Write {
+            path: self.target.clone(),
+            source,
+        })?;
+        self.commit()
+    }
+
     /// Moves the staged output into place in one atomic step.
     pub fn commit(mut self) -> Result<(), FsError> {
         let err = |source| FsError::Write {

@@ -11,9 +11,7 @@ mod common;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-fn aift(args: &[&str], dir: &std::path::Path) -> std::process::Output {
-    common::aift_in(args, dir)
-}
+use common::aift_in as aift;
 
 /// Runs a command that must be refused: exit 2 within `limit`, stderr containing every needle,
 /// nothing at `out`.

@@ -9,9 +9,7 @@ use aift::report::run_files;
 use aift::scenario::{Method, TrajectoryRecorder};
 use common::{aift_ok, setup, tiny_campaign};
 
-fn aift(args: &[&str], dir: &std::path::Path) -> std::process::Output {
-    common::aift_in(args, dir)
-}
+use common::aift_in as aift;
 
 /// Everything a page refers to is inside it: no script or style from elsewhere, no URL but
 /// the SVG namespace and uPlot's own banner comment.

@@ -37,4 +37,5 @@ python3 -m venv "$venv"
 "$venv/bin/pip" install -q ./python
 # From outside python/, so that `import aift` is the installed package, not the source folder.
 cd "$venv"
+echo "== pytest $root/python/tests" >&2
 AIFT_BIN="$root/target/release/aift" "$venv/bin/python" -m pytest -q "$root/python/tests"

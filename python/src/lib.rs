@@ -833,8 +833,9 @@ fn calibrate_to(
     let cal = py
         .detach(|| calibrate::calibrate(&setup, runs))
         .map_err(|e| scenario_err(e, &[]))?;
-    aift::fsio::write_atomic(staged.path(), cal.to_json().as_bytes()).map_err(file_err)?;
-    staged.commit().map_err(file_err)?;
+    staged
+        .commit_bytes(cal.to_json().as_bytes())
+        .map_err(file_err)?;
     Ok(serde_json::json!({
         "fingerprint": cal.fingerprint,
         "runs": cal.runs,
@@ -859,8 +860,9 @@ fn train_gp_to(
     let (gp, fit, held) = py
         .detach(|| aift::scenario::train_gp_fresh(&scenario.loaded, Some(points)))
         .map_err(|e| scenario_err(e, &[]))?;
-    aift::fsio::write_atomic(staged.path(), gp.to_json().as_bytes()).map_err(file_err)?;
-    staged.commit().map_err(file_err)?;
+    staged
+        .commit_bytes(gp.to_json().as_bytes())
+        .map_err(file_err)?;
     let h = &gp.hyperparameters;
     Ok(serde_json::json!({
         "points": points,

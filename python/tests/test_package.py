@@ -154,8 +154,6 @@ def test_step_api_takes_torques_and_readings():
     # The caller freezes encoder 1 at its first reading, as a fault would.
     frozen = obs["y"][0]
     for _ in range(100):
-        y = list(obs["y"])
-        y[0] = frozen
         obs, info = sim.step(readings=[frozen] + [None] * (len(sim.channels) - 1))
         assert obs["y"][0] == frozen and np.isnan(obs["y"][1:]).all()
     # The caller's torques replace the controller's: a constant push on joint 1 of the arm
@@ -313,7 +311,9 @@ def test_type_stub_names_what_the_native_module_has():
         assert names == have, (cls, names ^ have)
 
 
-def test_prepared_setup_is_reused_until_the_scenario_changes():
+def test_runs_of_one_scenario_agree_and_a_change_is_seen():
+    # The Scenario reuses its prepared arm and GP between runs; runs are deterministic, so this
+    # checks that the reuse changes no number and that set() drops it, not that it happens.
     sc = aift.Scenario.default(["duration=2.0"])
     a = aift.run(sc, method="pl-always", seed=2)
     b = aift.run(sc, method="pl-always", seed=2)  # the arm and GP prepared once, reused

@@ -8,7 +8,7 @@ import shutil
 
 import pytest
 
-playwright = pytest.importorskip("playwright.sync_api")
+import playwright.sync_api as playwright  # a missing Playwright fails the run, not skips it
 
 CHROMIUM = os.environ.get("AIFT_CHROMIUM", "/usr/bin/chromium")
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",

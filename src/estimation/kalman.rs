@@ -733,8 +733,11 @@ impl Estimator for VbAkf {
         self.fill_variances(input.precisions, &mut variances);
         self.ekf.record_innovations(input.readings, &variances);
         let mut ll = 0.0;
-        for _ in 0..self.iterations {
-            self.fill_variances(input.precisions, &mut variances);
+        for iteration in 0..self.iterations {
+            // The first iteration uses the variances just filled (alpha and beta unchanged).
+            if iteration > 0 {
+                self.fill_variances(input.precisions, &mut variances);
+            }
             self.ekf.x.copy_from(&self.x0);
             self.ekf.p.copy_from(&self.p0);
             ll = self.ekf.update(input.readings, &variances);

@@ -320,7 +320,11 @@ impl CampaignConfig {
         let de = toml::Deserializer::parse(&text).map_err(|e| parse(e.to_string()))?;
         serde_path_to_error::deserialize(de).map_err(|e| {
             let key = e.path().to_string();
-            parse(format!("`{key}`: {}", e.into_inner()))
+            parse(if key == "." {
+                e.into_inner().to_string()
+            } else {
+                format!("`{key}`: {}", e.into_inner())
+            })
         })
     }
 }
@@ -475,23 +479,7 @@ pub fn expand(config: &CampaignConfig, onsets: &OnsetConfig) -> Vec<Cell> {
 impl Campaign {
     /// Reads a campaign file, applies `overrides` to every arm's template, and prepares it.
     pub fn load(path: &Path, overrides: &[String]) -> Result<Self, ScenarioError> {
-        let text = fsio::read_text(path, fsio::MAX_SCENARIO_BYTES)?;
-        let de = toml::Deserializer::parse(&text).map_err(|e| ScenarioError::Parse {
-            path: path.to_path_buf(),
-            message: e.to_string(),
-        })?;
-        let config: CampaignConfig = serde_path_to_error::deserialize(de).map_err(|e| {
-            let key = e.path().to_string();
-            ScenarioError::Parse {
-                path: path.to_path_buf(),
-                message: if key == "." {
-                    e.into_inner().to_string()
-                } else {
-                    format!("`{key}`: {}", e.into_inner())
-                },
-            }
-        })?;
-        Self::from_config(config, path, overrides)
+        Self::from_config(CampaignConfig::load(path)?, path, overrides)
     }
 
     /// Validates a campaign and prepares its arms (loading each template, training its GP).

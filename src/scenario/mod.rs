@@ -126,16 +126,11 @@ impl LoadedScenario {
     /// Reads a scenario file and applies overrides (`KEY=VALUE`, dotted keys, `[i]` indices).
     pub fn from_file(path: &Path, overrides: &[String]) -> Result<Self, ScenarioError> {
         let text = fsio::read_text(path, fsio::MAX_SCENARIO_BYTES)?;
-        let scenario = parse_scenario(&text, path, overrides)?;
-        Ok(Self {
-            scenario,
-            path: path.to_path_buf(),
-            base_dir: Some(
-                path.parent()
-                    .map(Path::to_path_buf)
-                    .unwrap_or_else(|| PathBuf::from(".")),
-            ),
-        })
+        let base = path
+            .parent()
+            .map(Path::to_path_buf)
+            .unwrap_or_else(|| PathBuf::from("."));
+        Self::from_text(&text, path, &base, overrides)
     }
 
     /// Scenario TOML text, with overrides; `label` names it in messages and relative paths

@@ -318,13 +318,7 @@ fn init(args: InitArgs) -> Result<(), Failure> {
         },
     )
     .map_err(bad_input)?;
-    std::fs::write(staged.path(), &text).map_err(|source| {
-        file_failure(FsError::Write {
-            path: args.out.clone(),
-            source,
-        })
-    })?;
-    staged.commit().map_err(file_failure)?;
+    staged.commit_bytes(text.as_bytes()).map_err(file_failure)?;
     println!(
         "wrote {} for {}; run it with `aift run {}`",
         args.out.display(),
@@ -626,13 +620,9 @@ fn calibrate_cmd(args: CalibrateArgs) -> Result<(), Failure> {
     let staged = stage(&args.out, OutputKind::File, true)?;
     let start = std::time::Instant::now();
     let cal = calibrate::calibrate(&setup, runs).map_err(bad_input)?;
-    std::fs::write(staged.path(), cal.to_json()).map_err(|source| {
-        file_failure(FsError::Write {
-            path: args.out.clone(),
-            source,
-        })
-    })?;
-    staged.commit().map_err(file_failure)?;
+    staged
+        .commit_bytes(cal.to_json().as_bytes())
+        .map_err(file_failure)?;
     println!(
         "calibrated {} on {runs} healthy runs ({} ticks) in {:.1} s; fingerprint {}; wrote {}",
         setup.scenario().name,
@@ -671,13 +661,9 @@ fn train_gp(args: TrainGpArgs) -> Result<(), Failure> {
     let start = std::time::Instant::now();
     let (gp, fit, held) = scenario::train_gp_fresh(&loaded, args.points).map_err(bad_input)?;
     let seconds = start.elapsed().as_secs_f64();
-    std::fs::write(staged.path(), gp.to_json()).map_err(|source| {
-        file_failure(FsError::Write {
-            path: args.out.clone(),
-            source,
-        })
-    })?;
-    staged.commit().map_err(file_failure)?;
+    staged
+        .commit_bytes(gp.to_json().as_bytes())
+        .map_err(file_failure)?;
     let h = &gp.hyperparameters;
     println!(
         "trained the camera GP of {} on {points} points in {seconds:.2} s ({} likelihood evaluations)",
