@@ -10,21 +10,12 @@ use common::{at, run_recorded};
 
 /// The healthy paper scenario with the given faults appended (TOML snippets).
 fn with_faults(faults: &[&str], duration: f64) -> aift::scenario::RunSetup {
-    let mut overrides = vec![format!("duration={duration}")];
-    let text = faults.join("\n");
-    // Faults go in through a scenario file of their own: --set cannot add array entries.
-    let base = std::fs::read_to_string(common::repo("assets/scenarios/paper_healthy.toml"))
-        .unwrap()
-        .replace(
-            "../../urdf/",
-            &format!("{}/", common::repo("urdf").display()),
-        );
-    let dir = tempfile::tempdir().unwrap();
-    let file = dir.path().join("two_faults.toml");
-    std::fs::write(&file, format!("{base}\n{text}\n")).unwrap();
-    overrides.push("name=\"two_faults\"".into());
-    let loaded = aift::scenario::LoadedScenario::from_file(&file, &overrides).unwrap();
-    aift::scenario::RunSetup::prepare(loaded).unwrap()
+    let duration = format!("duration={duration}");
+    common::with_faults(
+        "paper_healthy.toml",
+        faults,
+        &[duration.as_str(), "name=\"two_faults\""],
+    )
 }
 
 const ENC1_FREEZE: &str = r#"[[faults]]

@@ -7,24 +7,32 @@
 //! remaining sensors re-anchor the belief at once instead of over P_mu / P_cam ticks.
 //!
 //! The precisions are beliefs too. Each sensor's precision is a discrete latent state, healthy
-//! (nominal) or failed (nominal / broad^2), inferred by Bayesian model comparison: a bank of
-//! hypotheses H_0 (all healthy), H_c (encoder or tachometer c failed) and H_cam (every camera
-//! output failed together, `camera_broad` times its noise), each a Kalman filter on the same
-//! generative model, scored every tick by its log evidence (the innovation log-likelihood, -F
-//! of its Laplace model), with a Markov switching prior between hypotheses; a channel's
-//! precision is the posterior expectation nominal x P(not H_c). (`hybrid.camera = "gradient"`
-//! learns the camera's precision by the seed paper's gradient rule instead and feeds it back
-//! into the bank.)
+//! (nominal) or failed (nominal / broad^2), inferred by Bayesian model comparison over a bank of
+//! hypotheses about which channels have failed, each a Kalman filter on the same generative
+//! model, scored every tick by its log evidence (the innovation log-likelihood, -F of its Laplace
+//! model), with a Markov switching prior between hypotheses; a channel's precision is the
+//! posterior expectation nominal x P(channel healthy). The camera fails as one (every output
+//! `camera_broad` times its noise); `hybrid.camera = "gradient"` learns the camera's precision by
+//! the seed paper's gradient rule instead and feeds it back into the bank.
+//!
+//! The bank is relative to a base hypothesis B (at first: nothing failed): B itself, B with one
+//! channel's state toggled (one more failure, or the end of one) and, while B holds a failure, B
+//! with its last-accepted failure swapped for another channel (a wrong first blame). When a
+//! hypothesis has been the most probable for `resync_ticks`, the bank is rebased on it; so
+//! several faults, starting and ending, are followed one decision at a time with 1 + 2K filters
+//! at most (K channels that can fail).
 //!
 //! The bank's transition is the arm's own dynamics driven by the applied torques (default), or
 //! the constant-velocity model (`hybrid.bank_model = "constant-velocity"`); the dynamics separate
 //! a frozen encoder from a frozen tachometer on arms without heavy damping. Its process noise per
 //! joint is max(`model_acceleration_noise`, `model_relative_error` x |predicted acceleration|), so
 //! a hard acceleration the model gets slightly wrong is not read as every sensor failing, and the
-//! masses can be scaled (`mass_scale`) to test model error. When a failure hypothesis becomes the
+//! masses can be scaled (`mass_scale`) to test model error. When another hypothesis becomes the
 //! most probable and the belief lies outside its 3-sigma ellipsoid, the belief is re-anchored on
-//! that hypothesis' estimate (which never trusted the failed channel); while it keeps winning, the
-//! other hypotheses restart from it every `resync_ticks`, so that a fault that ends is seen to end.
+//! that hypothesis' estimate. Every `resync_ticks` the other hypotheses restart from the base
+//! (while nothing has failed, only those the data do not favour): so a failure hypothesis that
+//! wins carries a recent estimate, and while a failure is accepted "is the channel healthy from
+//! now on?" stays a live question (docs/method.md, "The hybrid").
 
 use std::sync::Arc;
 
@@ -88,12 +96,14 @@ pub struct HybridConfig {
     pub camera: CameraPrecision,
     /// The camera hypothesis' noise as a multiple of the camera's.
     pub camera_broad: f64,
-    /// Re-anchor the belief when a failure hypothesis wins and the belief lies outside its
+    /// Re-anchor the belief when another hypothesis wins and the belief lies outside its
     /// 3-sigma ellipsoid.
     pub reanchor: bool,
-    /// While a failure hypothesis keeps winning, every this many ticks the others restart from
-    /// its estimate (so that they ask "is the channel healthy from now on?", and a fault that
-    /// ends is seen to end); 0: never.
+    /// A hypothesis that stays the most probable this many ticks becomes the bank's base; every
+    /// this many ticks the other hypotheses restart from the base (while it holds a failure, so
+    /// that they ask "is the channel healthy from now on?" and a fault that ends is seen to end;
+    /// while nothing has failed, those the data do not favour); 0: never (the bank keeps H_0 and
+    /// the one-channel failures, each from the start).
     pub resync_ticks: u64,
 }
 
@@ -150,14 +160,35 @@ impl HybridConfig {
     }
 }
 
+/// A slot of the bank, relative to the base hypothesis.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Slot {
+    Base,
+    /// The base with this key's state flipped.
+    Toggle(usize),
+    /// The base with its last-added failure replaced by this key.
+    Swap(usize),
+}
+
 /// The hybrid's belief and its bank of hypotheses.
 pub struct Hybrid {
     uaic: Uaic,
     layout: ChannelLayout,
     bank: Vec<Ekf>,
-    /// The channel each hypothesis holds failed (None: H_0).
-    failed: Vec<Option<usize>>,
+    /// The channels a hypothesis can hold failed: each encoder and tachometer, and the camera
+    /// as its first output (with `camera = "bank"`).
+    keys: Vec<usize>,
+    /// The channels the base hypothesis (slot 0) holds failed, by channel index.
+    base_failed: Vec<bool>,
+    /// The base's failed keys in the order they were added (the last is the least established).
+    order: Vec<usize>,
+    /// Which slots are in the bank now (swap slots only while the base holds a failure).
+    active: Vec<bool>,
+    /// The all-healthy hypothesis' covariance when the first failure was accepted: a restarted
+    /// hypothesis that trusts a channel the base holds failed starts with it.
+    healthy_p: DMatrix<f64>,
     probability: Vec<f64>,
+    /// The most probable hypothesis, and since when (the resync clock).
     winner: usize,
     winner_since: u64,
     model: Option<ArmDynamics>,
@@ -172,6 +203,9 @@ pub struct Hybrid {
     // evidence.
     ll: Vec<f64>,
     acc: Vec<f64>,
+    // Scratch of a rebase or restart: the slots that keep their states, the new probabilities.
+    kept: Vec<bool>,
+    scratch_p: Vec<f64>,
     noise: Vec<f64>,
 }
 
@@ -187,27 +221,38 @@ impl Hybrid {
     ) -> Self {
         let layout = ekf.layout();
         // Hypotheses: H_0; each encoder and tachometer; the camera as one (index = first output).
-        let mut failed = vec![None];
+        let mut keys = Vec::new();
         for c in 0..layout.len() {
             if !matches!(layout.channel(c), Channel::Camera(_)) {
-                failed.push(Some(c));
+                keys.push(c);
             }
         }
         if config.camera == CameraPrecision::Bank {
-            failed.push(Some(
+            keys.push(
                 layout
                     .group_range(crate::sensors::SensorGroup::Camera)
                     .start,
-            ));
+            );
         }
-        let h = failed.len();
-        let mut probability = vec![1e-3 / (h - 1) as f64; h];
+        let k = keys.len();
+        // Slots: the base, a toggle per key, a swap per key.
+        let h = 1 + 2 * k;
+        let mut probability = vec![0.0; h];
         probability[0] = 1.0 - 1e-3;
+        for p in &mut probability[1..=k] {
+            *p = 1e-3 / k as f64;
+        }
+        let mut active = vec![false; h];
+        active[..=k].fill(true);
         Self {
             uaic,
             layout,
+            healthy_p: ekf.p.clone(),
             bank: vec![ekf; h],
-            failed,
+            keys,
+            base_failed: vec![false; layout.len()],
+            order: Vec::new(),
+            active,
             probability,
             winner: 0,
             winner_since: 0,
@@ -220,6 +265,8 @@ impl Hybrid {
             initialised: false,
             ticks: 0,
             ll: vec![0.0; h],
+            kept: vec![false; h],
+            scratch_p: vec![0.0; h],
             acc: vec![0.0; layout.n_joints()],
             noise: vec![0.0; layout.n_joints()],
         }
@@ -245,9 +292,157 @@ impl Hybrid {
         }
     }
 
-    /// The hypotheses' probabilities (H_0, then one per encoder and tachometer).
+    /// The hypotheses' probabilities (the base, then one per encoder and tachometer, then the
+    /// camera's).
     pub fn probabilities(&self) -> &[f64] {
         &self.probability
+    }
+
+    /// The channels the most probable hypothesis holds failed (channel indices; the camera as
+    /// its first output).
+    pub fn failed_channels(&self) -> impl Iterator<Item = usize> + '_ {
+        (0..self.base_failed.len()).filter(|&c| self.base_failed[c])
+    }
+
+    /// What slot j holds: the base, the base with one key toggled, or the base with its last
+    /// failure swapped for another key.
+    fn slot(&self, j: usize) -> Slot {
+        let k = self.keys.len();
+        match j {
+            0 => Slot::Base,
+            j if j <= k => Slot::Toggle(self.keys[j - 1]),
+            j => Slot::Swap(self.keys[j - 1 - k]),
+        }
+    }
+
+    /// Whether hypothesis j holds channel `key` failed.
+    fn holds_failed(&self, j: usize, key: usize) -> bool {
+        let base = self.base_failed[key];
+        match self.slot(j) {
+            Slot::Base => base,
+            Slot::Toggle(t) => base ^ (key == t),
+            Slot::Swap(t) => key == t || (base && self.order.last() != Some(&key)),
+        }
+    }
+
+    /// Whether hypothesis j holds failed every channel the base does (it knows no more).
+    fn extends_base(&self, j: usize) -> bool {
+        self.keys
+            .iter()
+            .all(|&key| !self.base_failed[key] || self.holds_failed(j, key))
+    }
+
+    /// Makes hypothesis `w` the base (docs/method.md, "The hybrid"). The bank is always the base,
+    /// the base with one key toggled (a second fault, or the end of one, is a toggle away) and,
+    /// while the base holds a failure, the base with its last failure swapped for another key (a
+    /// wrong first blame, an encoder drift taken for a tachometer bias, is a swap away). The
+    /// filters whose hypotheses survive the move keep their states (the winner's, the old
+    /// base's, and on a new failure the old toggles, which become the swaps); the others restart
+    /// from the new base at the switching prior.
+    fn rebase(&mut self, w: usize) {
+        if self.slot(w) == Slot::Base {
+            return;
+        }
+        let k = self.keys.len();
+        let h = self.bank.len();
+        let mut p = std::mem::take(&mut self.scratch_p);
+        p.fill(0.0);
+        p[0] = self.probability[w];
+        let old_base = self.probability[0];
+        // Slots whose filters keep their states.
+        let mut kept = std::mem::take(&mut self.kept);
+        kept.fill(false);
+        kept[0] = true;
+        match self.slot(w) {
+            Slot::Base => unreachable!("checked above"),
+            Slot::Toggle(t) if !self.base_failed[t] => {
+                // A new failure: the old base is "t came back", the old toggles of other keys
+                // (base + t') are the new swaps (new base - t + t').
+                if self.order.is_empty() {
+                    self.healthy_p.copy_from(&self.bank[0].p);
+                }
+                self.base_failed[t] = true;
+                self.order.push(t);
+                self.bank.swap(0, w);
+                p[w] = old_base;
+                kept[w] = true;
+                for i in 0..k {
+                    if !self.base_failed[self.keys[i]] {
+                        self.bank.swap(1 + i, 1 + k + i);
+                        p[1 + k + i] = self.probability[1 + i];
+                        kept[1 + k + i] = true;
+                    }
+                }
+            }
+            Slot::Toggle(t) => {
+                // A fault that ended: the old base is "t failed after all".
+                self.base_failed[t] = false;
+                self.order.retain(|&c| c != t);
+                self.bank.swap(0, w);
+                p[w] = old_base;
+                kept[w] = true;
+            }
+            Slot::Swap(t) => {
+                // The last failure was the wrong one: t instead of b. The old base is the swap
+                // back to b.
+                let b = *self.order.last().expect("swaps exist only with a failure");
+                self.base_failed[b] = false;
+                self.base_failed[t] = true;
+                self.order.pop();
+                self.order.push(t);
+                let back = 1 + k + self.keys.iter().position(|&c| c == b).expect("a key");
+                self.bank.swap(0, w);
+                self.bank.swap(w, back);
+                p[back] = old_base;
+                kept[back] = true;
+            }
+        }
+        for j in 1..h {
+            self.active[j] = match self.slot(j) {
+                Slot::Base | Slot::Toggle(_) => true,
+                Slot::Swap(t) => !self.order.is_empty() && !self.base_failed[t],
+            };
+        }
+        let m = self.active.iter().filter(|&&a| a).count();
+        let floor = self.config.switch / (m - 1) as f64;
+        for j in 1..h {
+            if !self.active[j] {
+                p[j] = 0.0;
+                kept[j] = true;
+            } else if !kept[j] {
+                p[j] = floor;
+            }
+        }
+        let total: f64 = p.iter().sum();
+        for (q, v) in self.probability.iter_mut().zip(&p) {
+            *q = v / total;
+        }
+        self.kept = kept;
+        self.scratch_p = p;
+        self.restart_from_base();
+    }
+
+    /// Every active hypothesis not marked in `self.kept` restarts from the base's mean. One that holds
+    /// failed every channel the base does takes the base's covariance too (it knows no more);
+    /// one that trusts a channel the base holds failed takes the all-healthy covariance, so that
+    /// it asks whether that channel agrees with the base's estimate to within its nominal
+    /// noise: with the base's broader uncertainty a constant offset would be absorbed in one
+    /// tick, and an encoder bias pass for a healthy encoder.
+    fn restart_from_base(&mut self) {
+        for j in 1..self.bank.len() {
+            if self.kept[j] || !self.active[j] {
+                continue;
+            }
+            let extends = self.extends_base(j);
+            let (base, rest) = self.bank.split_at_mut(1);
+            let f = &mut rest[j - 1];
+            f.x.copy_from(&base[0].x);
+            if extends {
+                f.p.copy_from(&base[0].p);
+            } else {
+                f.p.copy_from(&self.healthy_p);
+            }
+        }
     }
 
     /// The bank's variances for hypothesis j, given the camera precisions in force.
@@ -268,7 +463,7 @@ impl Hybrid {
                                 .layout
                                 .group_range(crate::sensors::SensorGroup::Camera)
                                 .start;
-                            let broad = if self.failed[j] == Some(cam0) {
+                            let broad = if self.holds_failed(j, cam0) {
                                 self.config.camera_broad * self.config.camera_broad
                             } else {
                                 1.0
@@ -279,7 +474,7 @@ impl Hybrid {
                 }
                 _ => {
                     let v = 1.0 / self.nominal[c];
-                    if self.failed[j] == Some(c) {
+                    if self.holds_failed(j, c) {
                         v * self.config.broad * self.config.broad
                     } else {
                         v
@@ -292,6 +487,8 @@ impl Hybrid {
     fn step_bank(&mut self, input: &EstimatorInput<'_>) {
         let h = self.bank.len();
         if !self.initialised {
+            // Every slot gets a state, the inactive swaps too (they restart from the base
+            // when they enter the bank, keeping this covariance).
             for j in 0..h {
                 self.hypothesis_variances(j, input);
                 let v = self.variances.clone();
@@ -299,9 +496,12 @@ impl Hybrid {
             }
             self.initialised = true;
         } else {
-            // The model's acceleration at the belief, and the per-joint process noise it implies.
+            // The model's acceleration at the most probable hypothesis' estimate (which uses the
+            // model; the u-AIC's belief has only the acceleration-bound prior, and without a
+            // tachometer its velocity can be off by 0.1 rad/s, which on a damped arm is a wrong
+            // acceleration on every joint), and the per-joint process noise it implies.
             let n = self.layout.n_joints();
-            let x = self.uaic.belief();
+            let x = self.bank[self.winner].x.as_slice();
             let has_acc = self
                 .model
                 .as_mut()
@@ -319,31 +519,49 @@ impl Hybrid {
             } else {
                 (None, None)
             };
-            for f in &mut self.bank {
+            for (f, _) in self.bank.iter_mut().zip(&self.active).filter(|(_, a)| **a) {
                 f.predict_with_noise(acc, noise);
             }
-            // The switching prior: stay with 1 - s, leave to each other hypothesis with s/(h-1).
+            // The switching prior: stay with 1 - s, leave to each other active hypothesis with
+            // s/(m-1).
             let s = self.config.switch;
-            let leave = s / (h - 1) as f64;
+            let m = self.active.iter().filter(|&&a| a).count();
+            let leave = s / (m - 1) as f64;
             let total: f64 = self.probability.iter().sum();
-            for p in &mut self.probability {
+            for (p, _) in self
+                .probability
+                .iter_mut()
+                .zip(&self.active)
+                .filter(|(_, a)| **a)
+            {
                 *p = (1.0 - s) * *p + leave * (total - *p);
             }
         }
         let mut ll = std::mem::take(&mut self.ll);
-        linearise_bank(&mut self.bank);
+        linearise_bank(&mut self.bank, Some(&self.active));
         for j in 0..h {
-            self.hypothesis_variances(j, input);
-            ll[j] = self.bank[j].update(input.readings, &self.variances);
+            if self.active[j] {
+                self.hypothesis_variances(j, input);
+                ll[j] = self.bank[j].update(input.readings, &self.variances);
+            } else {
+                ll[j] = f64::NEG_INFINITY;
+            }
         }
         self.ticks += 1;
         let best = ll.iter().copied().fold(f64::NEG_INFINITY, f64::max);
         let mut total = 0.0;
         for j in 0..h {
-            self.probability[j] *= (ll[j] - best).exp();
-            total += self.probability[j];
+            if self.active[j] {
+                self.probability[j] *= (ll[j] - best).exp();
+                total += self.probability[j];
+            }
         }
-        for p in &mut self.probability {
+        for (p, _) in self
+            .probability
+            .iter_mut()
+            .zip(&self.active)
+            .filter(|(_, a)| **a)
+        {
             *p = (*p / total).max(1e-300);
         }
         self.ll = ll;
@@ -370,42 +588,49 @@ impl Estimator for Hybrid {
                 }
                 _ if input.precisions[c] <= 0.0 => 0.0,
                 _ => {
-                    let failed: f64 = self
-                        .failed
-                        .iter()
-                        .zip(&self.probability)
-                        .filter(|(f, _)| **f == Some(key))
-                        .map(|(_, p)| *p)
+                    let failed: f64 = (0..self.bank.len())
+                        .filter(|&j| self.active[j] && self.holds_failed(j, key))
+                        .map(|j| self.probability[j])
                         .sum();
                     self.nominal[c] * (1.0 - failed).max(self.floor)
                 }
             };
         }
-        // Re-anchoring when a failure hypothesis takes over.
+        // When another hypothesis becomes the most probable, the belief is re-anchored on it
+        // (if it lies outside its 3-sigma ellipsoid); once it has stayed the most probable for
+        // `resync_ticks`, the bank is rebased on it.
         let winner = (0..self.bank.len())
             .max_by(|&a, &b| self.probability[a].total_cmp(&self.probability[b]))
             .unwrap_or(0);
         let tick = self.ticks;
+        let period = self.config.resync_ticks;
+        let due = period > 0
+            && tick > self.winner_since
+            && (tick - self.winner_since).is_multiple_of(period);
         if winner != self.winner {
-            if winner != 0 && self.config.reanchor && self.outside(winner) {
+            if self.config.reanchor && self.outside(winner) {
                 let x: Vec<f64> = self.bank[winner].x.iter().copied().collect();
                 let p = self.bank[winner].p.clone();
                 self.uaic.reanchor(&x, Some(&p));
             }
             self.winner = winner;
             self.winner_since = tick;
-        } else if winner != 0
-            && self.config.resync_ticks > 0
-            && tick > self.winner_since
-            && (tick - self.winner_since).is_multiple_of(self.config.resync_ticks)
-        {
-            let (x, p) = (self.bank[winner].x.clone(), self.bank[winner].p.clone());
-            for (j, f) in self.bank.iter_mut().enumerate() {
-                if j != winner {
-                    f.x.copy_from(&x);
-                    f.p.copy_from(&p);
-                }
+        } else if due && winner != 0 {
+            self.rebase(winner);
+            self.winner = 0;
+        } else if due {
+            // While the base holds a failure, every other hypothesis restarts from it; while
+            // nothing has failed, those the data do not favour (probability at or below what
+            // the switching prior alone gives them), so that a failure hypothesis that wins
+            // later carries the estimate of the last resync, not one that has never used its
+            // channel (which carries the camera model's bias).
+            let m = self.active.iter().filter(|&&a| a).count();
+            let floor = self.config.switch / (m - 1) as f64;
+            let failed = !self.order.is_empty();
+            for j in 0..self.bank.len() {
+                self.kept[j] = j == 0 || (!failed && self.probability[j] > floor);
             }
+            self.restart_from_base();
         }
         self.uaic.step(input.readings, &self.precisions)
     }
@@ -447,4 +672,118 @@ pub fn build(
     };
     let ekf = Ekf::new(layout, gp, dt, noise);
     Hybrid::new(uaic, ekf, dynamics, config.clone(), nominal, floor)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::estimation::uaic::UaicConfig;
+    use crate::sensors::CameraModel;
+
+    fn toy_hybrid() -> Hybrid {
+        let layout = ChannelLayout::new(2, CameraModel::Pinhole);
+        let gp = Arc::new(GpModel::toy());
+        let uaic = Uaic::new(UaicConfig::default(), layout, gp.clone(), 1e-3);
+        let ekf = Ekf::new(layout, gp, 1e-3, 2.0);
+        let nominal = [1e6, 1e6, 1e6, 1e6, 1e4, 1e4];
+        Hybrid::new(uaic, ekf, None, HybridConfig::default(), &nominal, 1e-6)
+    }
+
+    /// The failed sets of the active hypotheses, as (slot, channel list).
+    fn sets(h: &Hybrid) -> Vec<(usize, Vec<usize>)> {
+        (0..h.bank.len())
+            .filter(|&j| h.active[j])
+            .map(|j| (j, (0..6).filter(|&k| h.holds_failed(j, k)).collect()))
+            .collect()
+    }
+
+    #[test]
+    fn the_bank_is_the_base_its_toggles_and_the_swaps_of_its_last_failure() {
+        let mut h = toy_hybrid();
+        // Keys: enc1, enc2, tach1, tach2 (channels 0-3), the camera (its first output, 4).
+        // Slots: the base (0), a toggle per key (1-5), a swap per key (6-10).
+        assert_eq!(
+            sets(&h),
+            vec![
+                (0, vec![]),
+                (1, vec![0]),
+                (2, vec![1]),
+                (3, vec![2]),
+                (4, vec![3]),
+                (5, vec![4])
+            ]
+        );
+        h.bank[3].x[0] = 0.25;
+        h.bank[2].x[0] = 0.5;
+        h.probability = vec![0.1, 0.0, 0.0, 0.9, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+        h.rebase(3);
+        // tach1 failed is the base; its toggle asks whether tach1 came back; the other toggles
+        // add a second failure (restarted from the base); the swaps (tach1 was the wrong blame)
+        // are the old one-failure hypotheses, states kept.
+        assert_eq!(
+            sets(&h),
+            vec![
+                (0, vec![2]),
+                (1, vec![0, 2]),
+                (2, vec![1, 2]),
+                (3, vec![]),
+                (4, vec![2, 3]),
+                (5, vec![2, 4]),
+                (6, vec![0]),
+                (7, vec![1]),
+                (9, vec![3]),
+                (10, vec![4])
+            ]
+        );
+        assert_eq!(h.failed_channels().collect::<Vec<_>>(), vec![2]);
+        assert_eq!(h.bank[0].x[0], 0.25, "the winner's filter is the base");
+        assert_eq!(
+            h.bank[7].x[0], 0.5,
+            "the old enc2 hypothesis is the enc2 swap"
+        );
+        for j in [1, 2, 4, 5] {
+            assert_eq!(h.bank[j].x[0], 0.25, "slot {j} restarts from the base");
+        }
+        // The winner's probability moves to slot 0 and the old base's to the tach1 toggle; the
+        // old one-failure hypotheses keep theirs, the new two-failure ones start at the
+        // switching prior.
+        let floor = h.config.switch / 9.0;
+        let total = 1.0 + 4.0 * floor;
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-15 * b;
+        assert!(close(h.probability[0], 0.9 / total));
+        assert!(close(h.probability[3], 0.1 / total));
+        assert!(close(h.probability[1], floor / total));
+        assert_eq!(h.probability[8], 0.0);
+        // A swap: encoder 1, not tachometer 1, failed. The old base becomes the tach1 swap.
+        h.rebase(6);
+        assert_eq!(h.failed_channels().collect::<Vec<_>>(), vec![0]);
+        assert_eq!(
+            h.bank[8].x[0], 0.25,
+            "the old base is the swap back to tach1"
+        );
+        assert!(!h.active[6] && h.active[8]);
+        // A second failure on top (the camera), then the end of the first: the sets stay the
+        // base, its toggles and the swaps of its last failure.
+        h.rebase(5);
+        assert_eq!(h.failed_channels().collect::<Vec<_>>(), vec![0, 4]);
+        h.rebase(1);
+        assert_eq!(h.failed_channels().collect::<Vec<_>>(), vec![4]);
+        assert_eq!(
+            sets(&h),
+            vec![
+                (0, vec![4]),
+                (1, vec![0, 4]),
+                (2, vec![1, 4]),
+                (3, vec![2, 4]),
+                (4, vec![3, 4]),
+                (5, vec![]),
+                (6, vec![0]),
+                (7, vec![1]),
+                (8, vec![2]),
+                (9, vec![3])
+            ]
+        );
+        let total: f64 = h.probability.iter().sum();
+        assert!((total - 1.0).abs() < 1e-12);
+    }
 }

@@ -195,7 +195,7 @@ impl Estimator for Imm {
                 f.predict(acc);
             }
         }
-        linearise_bank(&mut self.filters);
+        linearise_bank(&mut self.filters, None);
         for (j, f) in self.filters.iter_mut().enumerate() {
             for c in 0..m {
                 self.scratch[c] = variance(&self.variances[j], c);

@@ -424,13 +424,21 @@ pub const SHARED_LINEARISATION: f64 = 1e-3;
 /// filters whose joint positions lie within [`SHARED_LINEARISATION`] of an earlier filter's
 /// linearisation point (each then predicts the camera to first order about that point). A bank
 /// whose hypotheses agree, as when nothing fails, costs one GP evaluation instead of one each.
-pub fn linearise_bank(bank: &mut [Ekf]) {
+/// With `active`, only the filters it marks are linearised or shared from.
+pub fn linearise_bank(bank: &mut [Ekf], active: Option<&[bool]>) {
+    let is_active = |j: usize| active.is_none_or(|a| a[j]);
     for j in 0..bank.len() {
+        if !is_active(j) {
+            continue;
+        }
         let (done, rest) = bank.split_at_mut(j);
         let f = &mut rest[0];
         let n = f.n();
         let near = done
             .iter()
+            .enumerate()
+            .filter(|(i, _)| is_active(*i))
+            .map(|(_, d)| d)
             .find(|d| (0..n).all(|i| (d.x_pred[i] - f.x[i]).abs() <= SHARED_LINEARISATION));
         match near {
             Some(d) => {

@@ -141,6 +141,20 @@ pub fn setup(file: &str, overrides: &[&str]) -> aift::scenario::RunSetup {
     aift::scenario::RunSetup::prepare(loaded).expect("bundled scenario prepares")
 }
 
+/// A bundled scenario (`assets/scenarios/`) with faults appended (TOML snippets) and overrides.
+/// Faults go in through a scenario file of their own: --set cannot add array entries.
+pub fn with_faults(file: &str, faults: &[&str], overrides: &[&str]) -> aift::scenario::RunSetup {
+    let base = std::fs::read_to_string(repo(&format!("assets/scenarios/{file}")))
+        .unwrap()
+        .replace("../../urdf/", &format!("{}/", repo("urdf").display()));
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join(file);
+    std::fs::write(&path, format!("{base}\n{}\n", faults.join("\n"))).unwrap();
+    let overrides: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
+    let loaded = aift::scenario::LoadedScenario::from_file(&path, &overrides).unwrap();
+    aift::scenario::RunSetup::prepare(loaded).unwrap()
+}
+
 /// Runs one method and seed, recording the trajectory.
 pub fn run_recorded(
     setup: &aift::scenario::RunSetup,
