@@ -17,7 +17,7 @@ def site(channel, kind, cell):
     if kind == "healthy":
         return "healthy"
     if " then " in cell:
-        first = cell.split(" then ")[0].split()[-1]
+        first = cell.split()[0]
         return ("enc" if first.startswith("enc") else "tach") + " then cam (pair)"
     for p in ("enc", "tach", "cam"):
         if channel.startswith(p):
