@@ -298,8 +298,8 @@ impl Hybrid {
         &self.probability
     }
 
-    /// The channels the most probable hypothesis holds failed (channel indices; the camera as
-    /// its first output).
+    /// The channels the base hypothesis holds failed, the failures the bank has accepted
+    /// (channel indices; the camera as its first output).
     pub fn failed_channels(&self) -> impl Iterator<Item = usize> + '_ {
         (0..self.base_failed.len()).filter(|&c| self.base_failed[c])
     }
