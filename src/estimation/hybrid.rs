@@ -499,9 +499,16 @@ impl Hybrid {
             // The model's acceleration at the most probable hypothesis' estimate (which uses the
             // model; the u-AIC's belief has only the acceleration-bound prior, and without a
             // tachometer its velocity can be off by 0.1 rad/s, which on a damped arm is a wrong
-            // acceleration on every joint), and the per-joint process noise it implies.
+            // acceleration on every joint), and the per-joint process noise it implies. For the
+            // first `resync_ticks` the belief's instead: every hypothesis starts from one
+            // reading, and a failure hypothesis that leads for a tick would otherwise make the
+            // model predict from its own estimate and stay ahead (start-up false alarms).
             let n = self.layout.n_joints();
-            let x = self.bank[self.winner].x.as_slice();
+            let x = if self.ticks < self.config.resync_ticks {
+                self.uaic.belief()
+            } else {
+                self.bank[self.winner].x.as_slice()
+            };
             let has_acc = self
                 .model
                 .as_mut()
