@@ -36,7 +36,7 @@
 
 use std::sync::Arc;
 
-use nalgebra::DMatrix;
+use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
 use super::kalman::{ArmDynamics, Ekf, linearise_bank};
@@ -99,6 +99,15 @@ pub struct HybridConfig {
     /// Re-anchor the belief when another hypothesis wins and the belief lies outside its
     /// 3-sigma ellipsoid.
     pub reanchor: bool,
+    /// The weight of "stuck at its last reading" in a failed channel's reading model: a failed
+    /// reading is, with this probability, the last one again (to within `stuck_width`), else
+    /// broad noise. A frozen or stuck sensor repeats its reading exactly, which healthy noise
+    /// never does, so the failure is seen at once, also at rest where the reading is right;
+    /// any other failure pays ln(1 - this) per tick. 0: broad noise only.
+    pub stuck_weight: f64,
+    /// The width of the stuck component, as a multiple of the channel's noise standard deviation
+    /// (a quantised sensor needs at least its quantum).
+    pub stuck_width: f64,
     /// A hypothesis that stays the most probable this many ticks becomes the bank's base; every
     /// this many ticks the other hypotheses restart from the base (while it holds a failure, so
     /// that they ask "is the channel healthy from now on?" and a fault that ends is seen to end;
@@ -120,6 +129,8 @@ impl Default for HybridConfig {
             camera: CameraPrecision::Bank,
             camera_broad: 10.0,
             reanchor: true,
+            stuck_weight: 0.01,
+            stuck_width: 1e-3,
             resync_ticks: 500,
         }
     }
@@ -155,6 +166,12 @@ impl HybridConfig {
         }
         if !(self.camera_broad.is_finite() && self.camera_broad > 1.0 && self.camera_broad <= 1e9) {
             return Err(("camera_broad", "must be in (1, 1e9]".into()));
+        }
+        if !(0.0..1.0).contains(&self.stuck_weight) {
+            return Err(("stuck_weight", "must be in [0, 1)".into()));
+        }
+        if !(self.stuck_width.is_finite() && self.stuck_width > 0.0 && self.stuck_width <= 1.0) {
+            return Err(("stuck_width", "must be in (0, 1]".into()));
         }
         Ok(())
     }
@@ -207,6 +224,12 @@ pub struct Hybrid {
     kept: Vec<bool>,
     scratch_p: Vec<f64>,
     noise: Vec<f64>,
+    /// The last tick's readings (the stuck component's prediction).
+    last: Vec<Option<f64>>,
+    // Scratch of the re-anchoring test: belief minus estimate, its solve, the factor.
+    gap: DVector<f64>,
+    solved: DVector<f64>,
+    factor: DMatrix<f64>,
 }
 
 impl Hybrid {
@@ -235,6 +258,7 @@ impl Hybrid {
             );
         }
         let k = keys.len();
+        let dim = ekf.x.len();
         // Slots: the base, a toggle per key, a swap per key.
         let h = 1 + 2 * k;
         let mut probability = vec![0.0; h];
@@ -269,31 +293,48 @@ impl Hybrid {
             scratch_p: vec![0.0; h],
             acc: vec![0.0; layout.n_joints()],
             noise: vec![0.0; layout.n_joints()],
+            last: vec![None; layout.len()],
+            gap: DVector::zeros(dim),
+            solved: DVector::zeros(dim),
+            factor: DMatrix::zeros(dim, dim),
         }
     }
 
     /// Whether the belief lies outside hypothesis j's 3-sigma ellipsoid (with the belief's own
-    /// covariance added).
-    fn outside(&self, j: usize) -> bool {
+    /// covariance added). Works in the preallocated `gap`, `solved` and `factor`.
+    fn outside(&mut self, j: usize) -> bool {
         let f = &self.bank[j];
         let b = self.uaic.belief();
         if b.len() != f.x.len() {
             return false;
         }
-        let d =
-            nalgebra::DVector::from_iterator(b.len(), b.iter().zip(f.x.iter()).map(|(a, c)| a - c));
-        let mut s = f.p.clone();
+        for ((g, a), c) in self.gap.iter_mut().zip(b).zip(f.x.iter()) {
+            *g = a - c;
+        }
+        let mut s = std::mem::replace(&mut self.factor, DMatrix::zeros(0, 0));
+        s.copy_from(&f.p);
         if let Some(c) = self.uaic.covariance() {
             s += c;
         }
-        match s.cholesky() {
-            Some(ch) => ch.solve(&d).dot(&d) > 9.0 * b.len() as f64,
-            None => false,
+        let dim = s.nrows();
+        match nalgebra::linalg::Cholesky::new(s) {
+            Some(ch) => {
+                self.solved.copy_from(&self.gap);
+                ch.solve_mut(&mut self.solved);
+                self.factor = ch.unpack_dirty();
+                self.solved.dot(&self.gap) > 9.0 * b.len() as f64
+            }
+            None => {
+                self.factor = DMatrix::zeros(dim, dim);
+                false
+            }
         }
     }
 
-    /// The hypotheses' probabilities (the base, then one per encoder and tachometer, then the
-    /// camera's).
+    /// The hypotheses' probabilities by slot: the base (slot 0), the base with key k toggled
+    /// (slot 1 + k; the keys are each encoder and tachometer, then the camera with
+    /// `camera = "bank"`), the base with its last failure swapped for key k (slot 1 + K + k; 0
+    /// while inactive). `failed_channels` says what the base holds.
     pub fn probabilities(&self) -> &[f64] {
         &self.probability
     }
@@ -445,6 +486,49 @@ impl Hybrid {
         }
     }
 
+    /// The log evidence that hypothesis j's failed channels add for being possibly stuck: per
+    /// failed channel with a reading now and at the last tick, ln((1 - w) + w N_stuck / N_broad),
+    /// N_stuck = N(y; y_last, (width sigma)^2), N_broad the broad innovation density the filter
+    /// scores it with (docs/method.md, "The hybrid"). Uses `self.variances` of hypothesis j, at
+    /// the prediction.
+    fn stuck_evidence(&self, j: usize, input: &EstimatorInput<'_>) -> f64 {
+        let w = self.config.stuck_weight;
+        if w <= 0.0 {
+            return 0.0;
+        }
+        let cam0 = self
+            .layout
+            .group_range(crate::sensors::SensorGroup::Camera)
+            .start;
+        let f = &self.bank[j];
+        let mut total = 0.0;
+        for c in 0..self.layout.len() {
+            let key = match self.layout.channel(c) {
+                Channel::Camera(_) => cam0,
+                _ => c,
+            };
+            let r = self.variances[c];
+            let (Some(y), Some(last)) = (input.readings.get(c), self.last[c]) else {
+                continue;
+            };
+            if !r.is_finite() || !self.holds_failed(j, key) {
+                continue;
+            }
+            let nu = y - f.predicted(c);
+            let s = f.projected_variance(c) + r;
+            let ln_broad = -0.5 * (nu * nu / s + s.ln());
+            let width = self.config.stuck_width * self.config.stuck_width / self.nominal[c];
+            let d = y - last;
+            let ln_stuck = -0.5 * (d * d / width + width.ln());
+            // ln((1 - w) + w e^x), x = ln_stuck - ln_broad, without overflow.
+            let a = (1.0 - w).ln();
+            let b = w.ln() + ln_stuck - ln_broad;
+            let m = a.max(b);
+            total += m + ((a - m).exp() + (b - m).exp()).ln();
+        }
+        total
+    }
+
     /// The bank's variances for hypothesis j, given the camera precisions in force.
     fn hypothesis_variances(&mut self, j: usize, input: &EstimatorInput<'_>) {
         for c in 0..self.layout.len() {
@@ -549,11 +633,13 @@ impl Hybrid {
         for j in 0..h {
             if self.active[j] {
                 self.hypothesis_variances(j, input);
-                ll[j] = self.bank[j].update(input.readings, &self.variances);
+                let stuck = self.stuck_evidence(j, input);
+                ll[j] = self.bank[j].update(input.readings, &self.variances) + stuck;
             } else {
                 ll[j] = f64::NEG_INFINITY;
             }
         }
+        self.last.copy_from_slice(&input.readings.values);
         self.ticks += 1;
         let best = ll.iter().copied().fold(f64::NEG_INFINITY, f64::max);
         let mut total = 0.0;
@@ -616,9 +702,8 @@ impl Estimator for Hybrid {
             && (tick - self.winner_since).is_multiple_of(period);
         if winner != self.winner {
             if self.config.reanchor && self.outside(winner) {
-                let x: Vec<f64> = self.bank[winner].x.iter().copied().collect();
-                let p = self.bank[winner].p.clone();
-                self.uaic.reanchor(&x, Some(&p));
+                let f = &self.bank[winner];
+                self.uaic.reanchor(f.x.as_slice(), Some(&f.p));
             }
             self.winner = winner;
             self.winner_since = tick;
@@ -685,7 +770,7 @@ pub fn build(
 mod tests {
     use super::*;
     use crate::estimation::uaic::UaicConfig;
-    use crate::sensors::CameraModel;
+    use crate::sensors::{CameraModel, Readings};
 
     fn toy_hybrid() -> Hybrid {
         let layout = ChannelLayout::new(2, CameraModel::Pinhole);
@@ -792,5 +877,60 @@ mod tests {
         );
         let total: f64 = h.probability.iter().sum();
         assert!((total - 1.0).abs() < 1e-12);
+    }
+
+    /// The stuck component's evidence against a direct evaluation of
+    /// ln((1 - w) + w N(y; y_last, (width sigma)^2) / N(y; prediction, S)) with full Gaussian
+    /// densities: a repeated reading favours "failed" by many nats, a reading that moved by one
+    /// sigma costs ln(1 - w), and a hypothesis that trusts the channel adds nothing.
+    #[test]
+    fn a_repeated_reading_is_evidence_that_the_channel_is_stuck() {
+        let mut h = toy_hybrid();
+        let readings = Readings {
+            values: vec![
+                Some(0.1),
+                Some(0.2),
+                Some(0.01),
+                Some(0.0),
+                Some(0.3),
+                Some(0.4),
+            ],
+        };
+        let precisions = h.nominal.clone();
+        let input = EstimatorInput {
+            tick: 1,
+            readings: &readings,
+            precisions: &precisions,
+            applied_torques: &[0.0, 0.0],
+        };
+        for f in &mut h.bank {
+            f.initialise(&readings, &[1e-6, 1e-6, 1e-6, 1e-6, 1e-4, 1e-4]);
+        }
+        linearise_bank(&mut h.bank, Some(&h.active));
+        // Slot 3 holds tachometer 1 (channel 2) failed; slot 0 trusts it.
+        h.hypothesis_variances(3, &input);
+        assert_eq!(h.stuck_evidence(3, &input), 0.0, "no last reading yet");
+        let sigma = 1e-3;
+        let w = h.config.stuck_weight;
+        let direct = |h: &Hybrid, y: f64, last: f64| {
+            let gauss = |x: f64, m: f64, v: f64| {
+                (-(x - m) * (x - m) / (2.0 * v)).exp() / (2.0 * std::f64::consts::PI * v).sqrt()
+            };
+            let f = &h.bank[3];
+            let s = f.projected_variance(2) + h.variances[2];
+            let width = (h.config.stuck_width * sigma).powi(2);
+            ((1.0 - w) + w * gauss(y, last, width) / gauss(y, f.predicted(2), s)).ln()
+        };
+        h.last.copy_from_slice(&readings.values);
+        let repeated = h.stuck_evidence(3, &input);
+        assert!((repeated - direct(&h, 0.01, 0.01)).abs() < 1e-9 * repeated.abs());
+        assert!(repeated > 9.0, "{repeated}");
+        h.last[2] = Some(0.01 - sigma);
+        let moved = h.stuck_evidence(3, &input);
+        assert!((moved - (1.0 - w).ln()).abs() < 1e-12, "{moved}");
+        assert!((moved - direct(&h, 0.01, 0.01 - sigma)).abs() < 1e-12);
+        h.last.copy_from_slice(&readings.values);
+        h.hypothesis_variances(0, &input);
+        assert_eq!(h.stuck_evidence(0, &input), 0.0, "H_0 trusts every channel");
     }
 }
