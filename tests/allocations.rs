@@ -9,18 +9,30 @@
 mod common;
 
 use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::cell::Cell;
 
 use aift::scenario::{Method, Observer, RunMetrics, Simulation};
 
 struct Counting;
 
-static ALLOCATIONS: AtomicU64 = AtomicU64::new(0);
+thread_local! {
+    // Per thread: the test harness runs the tests of this file on threads of their own.
+    static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
+}
+
+fn count() {
+    // `try_with`: a thread's allocations while its locals are torn down are not counted.
+    let _ = ALLOCATIONS.try_with(|c| c.set(c.get() + 1));
+}
+
+fn allocations() -> u64 {
+    ALLOCATIONS.with(|c| c.get())
+}
 
 // SAFETY: forwards to the system allocator, counting calls.
 unsafe impl GlobalAlloc for Counting {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        count();
         // SAFETY: same contract as the caller's.
         unsafe { System.alloc(layout) }
     }
@@ -29,7 +41,7 @@ unsafe impl GlobalAlloc for Counting {
         unsafe { System.dealloc(ptr, layout) }
     }
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        count();
         // SAFETY: same contract as the caller's.
         unsafe { System.realloc(ptr, layout, new_size) }
     }
@@ -39,12 +51,15 @@ unsafe impl GlobalAlloc for Counting {
 static GLOBAL: Counting = Counting;
 
 fn allocations_per_tick(file: &str, overrides: &[&str], method: Method) -> f64 {
-    let setup = common::setup(file, overrides);
+    allocations_per_tick_of(&common::setup(file, overrides), method)
+}
+
+fn allocations_per_tick_of(setup: &aift::scenario::RunSetup, method: Method) -> f64 {
     let cal = method
         .needs_detector()
-        .then(|| aift::scenario::calibrate::calibrate(&setup, 4).unwrap());
-    let mut sim = Simulation::new(&setup, method, 1, cal.as_ref()).unwrap();
-    let mut metrics = RunMetrics::new(&setup, sim.nominal());
+        .then(|| aift::scenario::calibrate::calibrate(setup, 4).unwrap());
+    let mut sim = Simulation::new(setup, method, 1, cal.as_ref()).unwrap();
+    let mut metrics = RunMetrics::new(setup, sim.nominal());
     let mut step = |sim: &mut Simulation| {
         sim.decide(None);
         metrics.on_tick(&sim.record());
@@ -53,11 +68,11 @@ fn allocations_per_tick(file: &str, overrides: &[&str], method: Method) -> f64 {
     for _ in 0..300 {
         step(&mut sim);
     }
-    let before = ALLOCATIONS.load(Ordering::Relaxed);
+    let before = allocations();
     for _ in 0..1000 {
         step(&mut sim);
     }
-    (ALLOCATIONS.load(Ordering::Relaxed) - before) as f64 / 1000.0
+    (allocations() - before) as f64 / 1000.0
 }
 
 #[test]
@@ -98,6 +113,39 @@ fn the_closed_loop_allocates_nothing_per_tick() {
         eprintln!("{file} articulated rk4 no-ft: {a} allocations per tick");
         if a != 0.0 {
             failures.push(format!("{file} articulated rk4: {a}"));
+        }
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
+}
+
+/// The same while faults start and end in the counted ticks (0.3-1.3 s): isolations, the hybrid's
+/// and the IMM's winner changes, re-anchoring, rebasing and joint limits engaged on the Panda
+/// allocate nothing either. Not yet the detector (`pl-detect`, `deterministic`): while a channel
+/// is isolated it factorises the remaining channels' covariance in a new matrix every tick
+/// (about 1 allocation per tick on the paper arm, 4-5 on the Panda; NOTES.md, issue 15).
+#[test]
+fn the_closed_loop_allocates_nothing_while_faults_come_and_go() {
+    let faults = [
+        "[[faults]]\nchannel = \"enc1\"\nkind = \"bias\"\noffset = 0.3\nstart = 0.4\nend = 0.9",
+        "[[faults]]\nchannel = \"tach2\"\nkind = \"freeze\"\nstart = 0.5",
+        "[[faults]]\nchannel = \"cam\"\nkind = \"bias\"\noffset = 0.05\nstart = 0.7",
+    ];
+    let mut failures = Vec::new();
+    for file in ["paper_healthy.toml", "panda_healthy.toml"] {
+        let setup = common::with_faults(
+            file,
+            &faults,
+            &["gp.points=100", "robot.engine=\"articulated\""],
+        );
+        for method in Method::ALL {
+            let a = allocations_per_tick_of(&setup, method);
+            eprintln!(
+                "{file} with faults {}: {a} allocations per tick",
+                method.name()
+            );
+            if a != 0.0 && !method.needs_detector() {
+                failures.push(format!("{file} with faults {}: {a}", method.name()));
+            }
         }
     }
     assert!(failures.is_empty(), "{failures:#?}");

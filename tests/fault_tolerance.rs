@@ -2,8 +2,9 @@
 //! encoder freeze and a tachometer freeze on the paper's arm and on the same arm without damping
 //! (where the paper's learners and the gated and adaptive Kalman filters lose the tachometer
 //! case); `hybrid` keeps doing so with the arm model's masses 20 % off, recovers two faults in a
-//! row and takes back a channel whose fault ended; and no method is worse than `no-ft` on
-//! healthy runs, by the campaign's rule, or raises a false alarm there.
+//! row, sees a sensor frozen at rest at once and takes back a channel whose fault ended; and no
+//! method is worse than `no-ft` on healthy runs, by the campaign's rule, or raises a false alarm
+//! there.
 
 mod common;
 
@@ -130,6 +131,52 @@ fn the_hybrid_recovers_two_faults_in_a_row_and_a_bias_the_one_failure_bank_lost(
         }
         if of(&rs, Method::NoFt).all(|r| below(r.max_final_error, 0.01)) {
             failures.push(format!("{file} {faults:?}: no-ft recovers too, not a test"));
+        }
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
+}
+
+/// A sensor that freezes while the arm rests still reads the truth, so its broad failure model
+/// alone loses to "healthy" (the undamped paper arm's encoder freeze at rest ended 0.025 rad off,
+/// and a tachometer frozen at rest traded the lead 432 times in 10 s). A frozen reading repeats
+/// exactly, which the stuck component of the failure model sees at once: the channel's precision
+/// is down within 50 ms and the arm stays on target. Without it (`hybrid.stuck_weight = 0`) the
+/// channel is still trusted 50 ms after the freeze.
+#[test]
+fn the_hybrid_sees_a_sensor_frozen_at_rest_at_once() {
+    let mut failures = Vec::new();
+    for channel in ["enc1", "tach1"] {
+        let fault = format!("[[faults]]\nchannel = \"{channel}\"\nkind = \"freeze\"\nstart = 5.0");
+        for weight in ["0.01", "0"] {
+            let set = format!("hybrid.stuck_weight={weight}");
+            let setup = common::with_faults(
+                "undamped2_healthy.toml",
+                &[fault.as_str()],
+                &[
+                    "duration=10.0",
+                    "targets=[{time = 0.0, q = [-0.2, 0.5]}]",
+                    set.as_str(),
+                ],
+            );
+            let (r, rec) = common::run_recorded(&setup, Method::Hybrid, 1, None);
+            let column = format!("precision_{channel}");
+            let nominal = common::at(&rec, &column, 4.9);
+            let after = common::at(&rec, &column, 5.05);
+            eprintln!(
+                "{channel} frozen at rest, stuck weight {weight}: precision {nominal:.2e} before, \
+                 {after:.2e} at 5.05 s; final error {:.1e}",
+                r.max_final_error
+            );
+            let seen = after < 1e-3 * nominal;
+            if weight == "0" {
+                if seen {
+                    failures.push(format!(
+                        "{channel}: seen at once without the stuck component"
+                    ));
+                }
+            } else if !seen || !below(r.max_final_error, 0.005) {
+                failures.push(format!("{channel}: {after:.2e} of {nominal:.2e}, {r:?}"));
+            }
         }
     }
     assert!(failures.is_empty(), "{failures:#?}");

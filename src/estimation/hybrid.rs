@@ -275,7 +275,7 @@ impl Hybrid {
             bank: vec![ekf; h],
             keys,
             base_failed: vec![false; layout.len()],
-            order: Vec::new(),
+            order: Vec::with_capacity(k),
             active,
             probability,
             winner: 0,
@@ -489,8 +489,9 @@ impl Hybrid {
     /// The log evidence that hypothesis j's failed channels add for being possibly stuck: per
     /// failed channel with a reading now and at the last tick, ln((1 - w) + w N_stuck / N_broad),
     /// N_stuck = N(y; y_last, (width sigma)^2), N_broad the broad innovation density the filter
-    /// scores it with (docs/method.md, "The hybrid"). Uses `self.variances` of hypothesis j, at
-    /// the prediction.
+    /// scores it with (docs/method.md, "The hybrid"), taken at the prediction (the sequential
+    /// update scores it after the channels before it; with broad noise the two differ in the
+    /// last digits). Uses `self.variances` of hypothesis j.
     fn stuck_evidence(&self, j: usize, input: &EstimatorInput<'_>) -> f64 {
         let w = self.config.stuck_weight;
         if w <= 0.0 {

@@ -114,6 +114,11 @@ pub struct Chain {
     rhs: DVector<f64>,
     factor: DMatrix<f64>,
     rk4: Rk4Scratch,
+    // Scratch of the constraint impulses: the engaged joints, (M + h D)^-1's columns for them
+    // (column k for the k-th engaged joint), their friction impulses.
+    engaged: Vec<usize>,
+    columns: DMatrix<f64>,
+    friction_impulse: Vec<f64>,
 }
 
 impl Chain {
@@ -166,6 +171,9 @@ impl Chain {
             rhs: DVector::zeros(n),
             factor: DMatrix::zeros(n, n),
             rk4: Rk4Scratch::default(),
+            engaged: Vec::with_capacity(n),
+            columns: DMatrix::zeros(n, n),
+            friction_impulse: vec![0.0; n],
         };
         c.kinematics();
         c
@@ -329,30 +337,30 @@ impl Chain {
     /// the effective mass (M + h D) of the last factorisation's state.
     fn constraints(&mut self, h: f64) {
         let n = self.n_joints();
-        let engaged: Vec<usize> = (0..n)
-            .filter(|&i| {
-                let j = &self.joints[i];
-                j.friction > 0.0
-                    || j.limits.is_some_and(|(lo, hi)| {
-                        let next = self.q[i] + h * self.qd[i];
-                        next < lo || next > hi
-                    })
-            })
-            .collect();
+        let mut engaged = std::mem::take(&mut self.engaged);
+        engaged.clear();
+        engaged.extend((0..n).filter(|&i| {
+            let j = &self.joints[i];
+            j.friction > 0.0
+                || j.limits.is_some_and(|(lo, hi)| {
+                    let next = self.q[i] + h * self.qd[i];
+                    next < lo || next > hi
+                })
+        }));
         if engaged.is_empty() {
+            self.engaged = engaged;
             return;
         }
         // Columns of (M + h D)^-1 for the engaged joints.
-        let mut columns = Vec::with_capacity(engaged.len());
-        for &i in &engaged {
+        for (k, &i) in engaged.iter().enumerate() {
             self.inverse_column(i, h);
-            columns.push(self.rhs.clone());
+            self.columns.set_column(k, &self.rhs);
         }
-        let mut friction_impulse = vec![0.0; engaged.len()];
+        self.friction_impulse.fill(0.0);
         for _ in 0..8 {
             for (k, &i) in engaged.iter().enumerate() {
                 let j = &self.joints[i];
-                let w = columns[k][i];
+                let w = self.columns[(i, k)];
                 if w <= 0.0 {
                     continue;
                 }
@@ -368,22 +376,23 @@ impl Chain {
                     if let Some(target) = target {
                         let lambda = (target - self.qd[i]) / w;
                         for r in 0..n {
-                            self.qd[r] += columns[k][r] * lambda;
+                            self.qd[r] += self.columns[(r, k)] * lambda;
                         }
                     }
                 }
                 if j.friction > 0.0 {
                     let bound = j.friction * h;
-                    let old = friction_impulse[k];
+                    let old = self.friction_impulse[k];
                     let new = (old - self.qd[i] / w).clamp(-bound, bound);
                     let lambda = new - old;
-                    friction_impulse[k] = new;
+                    self.friction_impulse[k] = new;
                     for r in 0..n {
-                        self.qd[r] += columns[k][r] * lambda;
+                        self.qd[r] += self.columns[(r, k)] * lambda;
                     }
                 }
             }
         }
+        self.engaged = engaged;
     }
 
     /// Advances by `dt` in `substeps` substeps with joint torques `tau` and gravity `g`.

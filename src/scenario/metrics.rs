@@ -219,7 +219,7 @@ impl RunMetrics {
             last_5s_from: ticks.saturating_sub((5.0 / dt).round() as u64),
             min_health_last: vec![1.0; layout.len()],
             health: nominal.iter().map(|_| 1.0).collect(),
-            health_events: Vec::new(),
+            health_events: Vec::with_capacity(64),
             armed: vec![true; layout.len()],
             below_since: vec![None; layout.len()],
             dwell: ((DETECTION_DWELL / dt).round() as u64).max(1),
