@@ -140,8 +140,9 @@ fn the_hybrid_recovers_two_faults_in_a_row_and_a_bias_the_one_failure_bank_lost(
 /// alone loses to "healthy" (the undamped paper arm's encoder freeze at rest ended 0.025 rad off,
 /// and a tachometer frozen at rest traded the lead 432 times in 10 s). A frozen reading repeats
 /// exactly, which the stuck component of the failure model sees at once: the channel's precision
-/// is down within 50 ms and the arm stays on target. Without it (`hybrid.stuck_weight = 0`) the
-/// channel is still trusted 50 ms after the freeze.
+/// is down within 50 ms and the arm stays on target. The control run without it
+/// (`hybrid.stuck_weight = 0`) shows the case is not seen otherwise: the channel is still
+/// trusted 50 ms after the freeze (if a better broad model ever sees it, change the control).
 #[test]
 fn the_hybrid_sees_a_sensor_frozen_at_rest_at_once() {
     let mut failures = Vec::new();

@@ -27,7 +27,11 @@
 //! a frozen encoder from a frozen tachometer on arms without heavy damping. Its process noise per
 //! joint is max(`model_acceleration_noise`, `model_relative_error` x |predicted acceleration|), so
 //! a hard acceleration the model gets slightly wrong is not read as every sensor failing, and the
-//! masses can be scaled (`mass_scale`) to test model error. When another hypothesis becomes the
+//! masses can be scaled (`mass_scale`) to test model error; the model is evaluated at the most
+//! probable hypothesis' estimate, for the first `resync_ticks` at the belief. A failed channel's
+//! reading model is broad noise or, with weight `stuck_weight`, its last reading again: a frozen
+//! or stuck sensor repeats its reading exactly and is dropped within a few ticks, also at rest.
+//! When another hypothesis becomes the
 //! most probable and the belief lies outside its 3-sigma ellipsoid, the belief is re-anchored on
 //! that hypothesis' estimate. Every `resync_ticks` the other hypotheses restart from the base
 //! (while nothing has failed, only those the data do not favour): so a failure hypothesis that
@@ -106,13 +110,15 @@ pub struct HybridConfig {
     /// any other failure pays ln(1 - this) per tick. 0: broad noise only.
     pub stuck_weight: f64,
     /// The width of the stuck component, as a multiple of the channel's noise standard deviation
-    /// (a quantised sensor needs at least its quantum).
+    /// (a quantised sensor needs at least its quantum). A noise-free channel (sigma = 0) has no
+    /// stuck component: its healthy readings at rest repeat too.
     pub stuck_width: f64,
     /// A hypothesis that stays the most probable this many ticks becomes the bank's base; every
     /// this many ticks the other hypotheses restart from the base (while it holds a failure, so
     /// that they ask "is the channel healthy from now on?" and a fault that ends is seen to end;
     /// while nothing has failed, those the data do not favour); 0: never (the bank keeps H_0 and
-    /// the one-channel failures, each from the start).
+    /// the one-channel failures, each from the start). For the first this many ticks the bank's
+    /// model acceleration is taken at the u-AIC's belief (with 0: never).
     pub resync_ticks: u64,
 }
 
@@ -170,12 +176,16 @@ impl HybridConfig {
         if !(0.0..1.0).contains(&self.stuck_weight) {
             return Err(("stuck_weight", "must be in [0, 1)".into()));
         }
-        if !(self.stuck_width.is_finite() && self.stuck_width > 0.0 && self.stuck_width <= 1.0) {
-            return Err(("stuck_width", "must be in (0, 1]".into()));
+        if !(self.stuck_width.is_finite() && self.stuck_width > 0.0 && self.stuck_width <= 100.0) {
+            return Err(("stuck_width", "must be in (0, 100]".into()));
         }
         Ok(())
     }
 }
+
+/// The nominal precision of a noise-free channel (`scenario::nominal_precisions`): no stuck
+/// component for it.
+const NOISE_FREE: f64 = 1e12;
 
 /// A slot of the bank, relative to the base hypothesis.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -301,7 +311,8 @@ impl Hybrid {
     }
 
     /// Whether the belief lies outside hypothesis j's 3-sigma ellipsoid (with the belief's own
-    /// covariance added). Works in the preallocated `gap`, `solved` and `factor`.
+    /// covariance added). Works in the preallocated `gap`, `solved` and `factor` (a degenerate
+    /// covariance, the failure path, allocates a new factor).
     fn outside(&mut self, j: usize) -> bool {
         let f = &self.bank[j];
         let b = self.uaic.belief();
@@ -512,7 +523,7 @@ impl Hybrid {
             let (Some(y), Some(last)) = (input.readings.get(c), self.last[c]) else {
                 continue;
             };
-            if !r.is_finite() || !self.holds_failed(j, key) {
+            if !r.is_finite() || self.nominal[c] >= NOISE_FREE || !self.holds_failed(j, key) {
                 continue;
             }
             let nu = y - f.predicted(c);

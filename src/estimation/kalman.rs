@@ -295,7 +295,7 @@ impl Ekf {
 
     /// The prediction of channel c at the current mean (camera: first order about the
     /// linearisation point).
-    pub fn predicted(&self, c: usize) -> f64 {
+    pub(crate) fn predicted(&self, c: usize) -> f64 {
         let n = self.n();
         match self.layout.channel(c) {
             Channel::Encoder(i) => self.x[i],

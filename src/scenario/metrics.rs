@@ -24,6 +24,11 @@ pub const DETECTION_DWELL: f64 = 0.02;
 pub const RECOVERY_HEALTH: f64 = 0.5;
 /// Longest list of detections a run keeps.
 pub const MAX_DETECTIONS: usize = 10_000;
+
+/// Health events room is made for at the start of a run, so that the first ones do not
+/// allocate inside the loop (more grow the list, up to [`MAX_DETECTIONS`]).
+const HEALTH_EVENTS_RESERVED: usize = 64;
+
 /// Grace after a fault ends during which a detection is not a false alarm (s).
 pub const FALSE_ALARM_GRACE: f64 = 1.0;
 
@@ -219,7 +224,7 @@ impl RunMetrics {
             last_5s_from: ticks.saturating_sub((5.0 / dt).round() as u64),
             min_health_last: vec![1.0; layout.len()],
             health: nominal.iter().map(|_| 1.0).collect(),
-            health_events: Vec::with_capacity(64),
+            health_events: Vec::with_capacity(HEALTH_EVENTS_RESERVED),
             armed: vec![true; layout.len()],
             below_since: vec![None; layout.len()],
             dwell: ((DETECTION_DWELL / dt).round() as u64).max(1),
