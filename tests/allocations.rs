@@ -51,11 +51,7 @@ unsafe impl GlobalAlloc for Counting {
 static GLOBAL: Counting = Counting;
 
 fn allocations_per_tick(file: &str, overrides: &[&str], method: Method) -> f64 {
-    allocations_per_tick_of(&common::setup(file, overrides), method)
-}
-
-fn allocations_per_tick_of(setup: &aift::scenario::RunSetup, method: Method) -> f64 {
-    counted_ticks(setup, method).0
+    counted_ticks(&common::setup(file, overrides), method).0
 }
 
 /// Allocations per tick over ticks 300-1300, and each channel's lowest precision there as a
@@ -133,9 +129,10 @@ fn the_closed_loop_allocates_nothing_per_tick() {
     assert!(failures.is_empty(), "{failures:#?}");
 }
 
-/// The same while faults start and end in the counted ticks (0.3-1.3 s): isolations, the hybrid's
-/// and the IMM's winner changes, re-anchoring, rebasing and joint limits engaged on the Panda
-/// allocate nothing either. Not yet the detector (`pl-detect`, `deterministic`): while a channel
+/// The same while faults start and end in the counted ticks (0.3-1.3 s): isolations, the banks'
+/// winner changes and re-anchoring (the test checks that the hybrid dropped the biased encoder
+/// and the frozen tachometer there) and, on the Panda, joint limits engaged allocate nothing
+/// either. Not yet the detector (`pl-detect`, `deterministic`): while a channel
 /// is isolated it factorises the remaining channels' covariance in a new matrix every tick
 /// (about 1 allocation per tick on the paper arm, 4-5 on the Panda; NOTES.md, issue 15).
 #[test]

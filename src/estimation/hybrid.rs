@@ -47,7 +47,7 @@ use super::kalman::{ArmDynamics, Ekf, linearise_bank};
 use super::uaic::Uaic;
 use super::{Estimate, Estimator, EstimatorInput};
 use crate::gp::GpModel;
-use crate::sensors::{Channel, ChannelLayout};
+use crate::sensors::{Channel, ChannelLayout, NOISE_FREE_PRECISION};
 
 /// The bank's transition model.
 #[derive(
@@ -182,10 +182,6 @@ impl HybridConfig {
         Ok(())
     }
 }
-
-/// The nominal precision of a noise-free channel (`scenario::nominal_precisions`): no stuck
-/// component for it.
-const NOISE_FREE: f64 = 1e12;
 
 /// A slot of the bank, relative to the base hypothesis.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -367,6 +363,19 @@ impl Hybrid {
         }
     }
 
+    /// The bank's key for channel c: the channel itself, the camera's first output for every
+    /// camera output (the camera fails as one).
+    fn key(&self, c: usize) -> usize {
+        match self.layout.channel(c) {
+            Channel::Camera(_) => {
+                self.layout
+                    .group_range(crate::sensors::SensorGroup::Camera)
+                    .start
+            }
+            _ => c,
+        }
+    }
+
     /// Whether hypothesis j holds channel `key` failed.
     fn holds_failed(&self, j: usize, key: usize) -> bool {
         let base = self.base_failed[key];
@@ -508,22 +517,18 @@ impl Hybrid {
         if w <= 0.0 {
             return 0.0;
         }
-        let cam0 = self
-            .layout
-            .group_range(crate::sensors::SensorGroup::Camera)
-            .start;
+        let (ln_healthy, ln_w) = ((1.0 - w).ln(), w.ln());
         let f = &self.bank[j];
         let mut total = 0.0;
         for c in 0..self.layout.len() {
-            let key = match self.layout.channel(c) {
-                Channel::Camera(_) => cam0,
-                _ => c,
-            };
             let r = self.variances[c];
             let (Some(y), Some(last)) = (input.readings.get(c), self.last[c]) else {
                 continue;
             };
-            if !r.is_finite() || self.nominal[c] >= NOISE_FREE || !self.holds_failed(j, key) {
+            if !r.is_finite()
+                || self.nominal[c] >= NOISE_FREE_PRECISION
+                || !self.holds_failed(j, self.key(c))
+            {
                 continue;
             }
             let nu = y - f.predicted(c);
@@ -533,8 +538,8 @@ impl Hybrid {
             let d = y - last;
             let ln_stuck = -0.5 * (d * d / width + width.ln());
             // ln((1 - w) + w e^x), x = ln_stuck - ln_broad, without overflow.
-            let a = (1.0 - w).ln();
-            let b = w.ln() + ln_stuck - ln_broad;
+            let a = ln_healthy;
+            let b = ln_w + ln_stuck - ln_broad;
             let m = a.max(b);
             total += m + ((a - m).exp() + (b - m).exp()).ln();
         }
@@ -555,11 +560,7 @@ impl Hybrid {
                             inflate / self.nominal[c] * (self.nominal[c] / w).max(1.0)
                         }
                         CameraPrecision::Bank => {
-                            let cam0 = self
-                                .layout
-                                .group_range(crate::sensors::SensorGroup::Camera)
-                                .start;
-                            let broad = if self.holds_failed(j, cam0) {
+                            let broad = if self.holds_failed(j, self.key(c)) {
                                 self.config.camera_broad * self.config.camera_broad
                             } else {
                                 1.0
@@ -678,15 +679,8 @@ impl Estimator for Hybrid {
         self.step_bank(input);
         // Channel precisions: the bank's posterior expectation for encoders and tachometers,
         // the learned precision for the camera.
-        let cam0 = self
-            .layout
-            .group_range(crate::sensors::SensorGroup::Camera)
-            .start;
         for c in 0..self.layout.len() {
-            let key = match self.layout.channel(c) {
-                Channel::Camera(_) => cam0,
-                _ => c,
-            };
+            let key = self.key(c);
             self.precisions[c] = match self.layout.channel(c) {
                 Channel::Camera(_) if self.config.camera == CameraPrecision::Gradient => {
                     input.precisions[c]

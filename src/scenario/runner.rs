@@ -104,7 +104,13 @@ impl Observer for Observers<'_> {
 pub fn nominal_precisions(sigmas: &[f64]) -> Vec<f64> {
     sigmas
         .iter()
-        .map(|s| if *s > 0.0 { 1.0 / (s * s) } else { 1e12 })
+        .map(|s| {
+            if *s > 0.0 {
+                1.0 / (s * s)
+            } else {
+                crate::sensors::NOISE_FREE_PRECISION
+            }
+        })
         .collect()
 }
 

@@ -255,6 +255,9 @@ impl ChannelLayout {
     }
 }
 
+/// The nominal precision given to a noise-free channel (sigma = 0) in place of 1 / 0.
+pub const NOISE_FREE_PRECISION: f64 = 1e12;
+
 /// One tick's readings, one per channel in [`ChannelLayout`] order; `None` is missing.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Readings {
