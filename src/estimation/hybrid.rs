@@ -1,10 +1,10 @@
 //! `hybrid`: the active-inference method meant to hold at every fault site (docs/method.md,
 //! "The hybrid").
 //!
-//! The belief is the u-AIC's: Gauss-Newton descent on F, with the state prior's precision
-//! propagated as a Kalman filter's would be (the inverse of A Sigma A' + Q, Sigma the last
-//! posterior covariance), so that when a channel loses its weight the prior loosens and the
-//! remaining sensors re-anchor the belief at once instead of over P_mu / P_cam ticks.
+//! The belief is the u-AIC's: Gauss-Newton descent on F with the paper's state prior (or, with
+//! `hybrid.prior = "propagated"`, the state prior's precision propagated as a Kalman filter's
+//! would be). When a hypothesis that drops a channel the belief has been using becomes the most
+//! probable, the belief is re-anchored on that hypothesis' estimate, which never used it.
 //!
 //! The precisions are beliefs too. Each sensor's precision is a discrete latent state, healthy
 //! (nominal) or failed (nominal / broad^2), inferred by Bayesian model comparison over a bank of
@@ -31,12 +31,15 @@
 //! probable hypothesis' estimate, for the first `resync_ticks` at the belief. A failed channel's
 //! reading model is broad noise or, with weight `stuck_weight`, its last reading again: a frozen
 //! or stuck sensor repeats its reading exactly and is dropped within a few ticks, also at rest.
-//! When another hypothesis becomes the
+//! When another hypothesis that holds failed a channel the last winner trusted becomes the
 //! most probable and the belief lies outside its 3-sigma ellipsoid, the belief is re-anchored on
-//! that hypothesis' estimate. Every `resync_ticks` the other hypotheses restart from the base
-//! (while nothing has failed, only those the data do not favour): so a failure hypothesis that
-//! wins carries a recent estimate, and while a failure is accepted "is the channel healthy from
-//! now on?" stays a live question (docs/method.md, "The hybrid").
+//! that hypothesis' estimate. Every `resync_ticks` the other hypotheses restart from the base,
+//! except those the data favour (probability above what the switching prior alone gives them)
+//! while nothing has failed, and the swaps the data favour while a failure is accepted (a swap
+//! is the rival explanation of the accepted failure, and restarting it from the base, which has
+//! followed the blamed channel's rival, would throw away the state that can win): so a failure
+//! hypothesis that wins carries a recent estimate, and while a failure is accepted "is the
+//! channel healthy from now on?" stays a live question (docs/method.md, "The hybrid").
 
 use std::sync::Arc;
 
@@ -44,7 +47,7 @@ use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
 use super::kalman::{ArmDynamics, Ekf, linearise_bank};
-use super::uaic::Uaic;
+use super::uaic::{PriorMode, Uaic};
 use super::{Estimate, Estimator, EstimatorInput};
 use crate::gp::GpModel;
 use crate::sensors::{Channel, ChannelLayout, NOISE_FREE_PRECISION};
@@ -100,9 +103,15 @@ pub struct HybridConfig {
     pub camera: CameraPrecision,
     /// The camera hypothesis' noise as a multiple of the camera's.
     pub camera_broad: f64,
-    /// Re-anchor the belief when another hypothesis wins and the belief lies outside its
-    /// 3-sigma ellipsoid.
+    /// Re-anchor the belief when another hypothesis wins that holds failed a channel the last
+    /// winner trusted, and the belief lies outside its 3-sigma ellipsoid.
     pub reanchor: bool,
+    /// The belief's state prior: the u-AIC's fixed P_mu, P_mu' (the paper's, default), or the
+    /// propagated prior (a Kalman filter's covariance). Measured in docs/method.md, "The
+    /// hybrid": the propagated prior lowers the belief error of healthy runs by about a fifth
+    /// but integrates a tachometer's scale error and the camera model's bias into the
+    /// position once an encoder is dropped.
+    pub prior: PriorMode,
     /// The weight of "stuck at its last reading" in a failed channel's reading model: a failed
     /// reading is, with this probability, the last one again (to within `stuck_width`), else
     /// broad noise. A frozen or stuck sensor repeats its reading exactly, which healthy noise
@@ -135,6 +144,7 @@ impl Default for HybridConfig {
             camera: CameraPrecision::Bank,
             camera_broad: 10.0,
             reanchor: true,
+            prior: PriorMode::Fixed,
             stuck_weight: 0.01,
             stuck_width: 1e-3,
             resync_ticks: 500,
@@ -393,6 +403,16 @@ impl Hybrid {
             .all(|&key| !self.base_failed[key] || self.holds_failed(j, key))
     }
 
+    /// Whether hypothesis `new` holds failed a channel that hypothesis `old` trusts: only then
+    /// has the belief used readings that the new winner says are wrong, and only then is it
+    /// re-anchored. A winner that trusts more (a failure that ended, a false blame withdrawn)
+    /// lets the belief take the channel back through its precision.
+    fn distrusts_more(&self, new: usize, old: usize) -> bool {
+        self.keys
+            .iter()
+            .any(|&key| self.holds_failed(new, key) && !self.holds_failed(old, key))
+    }
+
     /// Makes hypothesis `w` the base (docs/method.md, "The hybrid"). The bank is always the base,
     /// the base with one key toggled (a second fault, or the end of one, is a toggle away) and,
     /// while the base holds a failure, the base with its last failure swapped for another key (a
@@ -480,6 +500,27 @@ impl Hybrid {
         }
         self.kept = kept;
         self.scratch_p = p;
+        self.restart_from_base();
+    }
+
+    /// A resync while the winner stays, every `resync_ticks`. The hypotheses the data do not
+    /// favour (probability at or below what the switching prior alone gives them) restart from
+    /// the base, so that a failure hypothesis that wins later carries the estimate of the last
+    /// resync, not one that has never used its channel (which carries the camera model's bias).
+    /// While the base holds a failure, the toggles restart whatever their probability ("is the
+    /// channel healthy from now on?"); a favoured swap keeps its state: it is the rival
+    /// explanation of the accepted failure, and the base has followed the blamed channel's
+    /// rival (the Panda shoulder's encoder drift, first blamed on its tachometer, ended 0.02 rad
+    /// off when the encoder swap restarted from that base).
+    fn resync(&mut self) {
+        let m = self.active.iter().filter(|&&a| a).count();
+        let floor = self.config.switch / (m - 1) as f64;
+        let failed = !self.order.is_empty();
+        for j in 0..self.bank.len() {
+            let favoured = self.probability[j] > floor;
+            let swap = matches!(self.slot(j), Slot::Swap(_));
+            self.kept[j] = j == 0 || ((!failed || swap) && favoured);
+        }
         self.restart_from_base();
     }
 
@@ -696,8 +737,9 @@ impl Estimator for Hybrid {
             };
         }
         // When another hypothesis becomes the most probable, the belief is re-anchored on it
-        // (if it lies outside its 3-sigma ellipsoid); once it has stayed the most probable for
-        // `resync_ticks`, the bank is rebased on it.
+        // (if it drops a channel the last winner trusted and the belief lies outside its
+        // 3-sigma ellipsoid); once it has stayed the most probable for `resync_ticks`, the bank
+        // is rebased on it.
         let winner = (0..self.bank.len())
             .max_by(|&a, &b| self.probability[a].total_cmp(&self.probability[b]))
             .unwrap_or(0);
@@ -707,7 +749,10 @@ impl Estimator for Hybrid {
             && tick > self.winner_since
             && (tick - self.winner_since).is_multiple_of(period);
         if winner != self.winner {
-            if self.config.reanchor && self.outside(winner) {
+            if self.config.reanchor
+                && self.distrusts_more(winner, self.winner)
+                && self.outside(winner)
+            {
                 let f = &self.bank[winner];
                 self.uaic.reanchor(f.x.as_slice(), Some(&f.p));
             }
@@ -717,18 +762,7 @@ impl Estimator for Hybrid {
             self.rebase(winner);
             self.winner = 0;
         } else if due {
-            // While the base holds a failure, every other hypothesis restarts from it; while
-            // nothing has failed, those the data do not favour (probability at or below what
-            // the switching prior alone gives them), so that a failure hypothesis that wins
-            // later carries the estimate of the last resync, not one that has never used its
-            // channel (which carries the camera model's bias).
-            let m = self.active.iter().filter(|&&a| a).count();
-            let floor = self.config.switch / (m - 1) as f64;
-            let failed = !self.order.is_empty();
-            for j in 0..self.bank.len() {
-                self.kept[j] = j == 0 || (!failed && self.probability[j] > floor);
-            }
-            self.restart_from_base();
+            self.resync();
         }
         self.uaic.step(input.readings, &self.precisions)
     }
@@ -883,6 +917,49 @@ mod tests {
         );
         let total: f64 = h.probability.iter().sum();
         assert!((total - 1.0).abs() < 1e-12);
+    }
+
+    /// A resync while a failure is accepted restarts every toggle from the base, and a swap
+    /// only when the data do not favour it: a favoured swap is the rival explanation of the
+    /// accepted failure and keeps the state it gathered.
+    #[test]
+    fn a_resync_keeps_the_favoured_swaps_and_restarts_the_rest() {
+        let mut h = toy_hybrid();
+        h.probability = vec![0.1, 0.0, 0.0, 0.9, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+        h.rebase(3);
+        // The base holds tach1 (channel 2) failed; slot 7 is "enc2 failed instead", slot 9
+        // "tach2 failed instead", slot 2 the toggle "enc2 failed too".
+        h.bank[0].x[0] = 0.25;
+        for j in [2, 7, 9] {
+            h.bank[j].x[0] = 0.5;
+        }
+        let floor = h.config.switch / 9.0;
+        h.probability[7] = 100.0 * floor;
+        h.probability[2] = 100.0 * floor;
+        h.probability[9] = floor;
+        h.resync();
+        assert_eq!(h.bank[7].x[0], 0.5, "a favoured swap keeps its state");
+        assert_eq!(h.bank[2].x[0], 0.25, "a toggle restarts, favoured or not");
+        assert_eq!(h.bank[9].x[0], 0.25, "a swap the data do not favour restarts");
+    }
+
+    /// The belief is re-anchored only on a winner that drops a channel the last winner
+    /// trusted: a swap or a new failure does, a failure that ended or a withdrawn blame does
+    /// not (the belief takes the channel back through its precision).
+    #[test]
+    fn only_a_winner_that_drops_a_trusted_channel_re_anchors() {
+        let mut h = toy_hybrid();
+        // Slots 0 (nothing failed) and 3 (tach1 failed).
+        assert!(h.distrusts_more(3, 0));
+        assert!(!h.distrusts_more(0, 3));
+        h.probability = vec![0.1, 0.0, 0.0, 0.9, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+        h.rebase(3);
+        // Base {tach1}; slot 3 is "tach1 came back", slot 6 "enc1 instead of tach1", slot 1
+        // "enc1 failed too".
+        assert!(!h.distrusts_more(3, 0), "a failure that ended");
+        assert!(h.distrusts_more(6, 0), "a swap drops enc1");
+        assert!(h.distrusts_more(1, 0), "a second failure");
+        assert!(!h.distrusts_more(0, 1), "back from a second failure");
     }
 
     /// The stuck component's evidence against a direct evaluation of

@@ -13,7 +13,7 @@ use super::{RunSetup, ScenarioError};
 use crate::estimation::Estimator;
 use crate::estimation::imm::Imm;
 use crate::estimation::kalman::{Ekf, EkfGate, VbAkf};
-use crate::estimation::uaic::{PriorMode, Uaic};
+use crate::estimation::uaic::Uaic;
 use crate::precision::{
     Bayes, Calibration, Detector, Deterministic, Fixed, GatedLearning, Gradient, Oracle, PerGroup,
     PrecisionMethod, Window,
@@ -56,8 +56,8 @@ pub enum Method {
     VbAkf,
     /// Interacting multiple models: one hypothesis per channel failing, and the nominal one.
     Imm,
-    /// Active inference at every fault site: u-AIC belief with a propagated prior, encoder and
-    /// tachometer precisions from a bank of failure hypotheses, gradient-learned camera.
+    /// Active inference at every fault site: the u-AIC's belief, every sensor's precision from a
+    /// bank of failure hypotheses, the belief re-anchored on a winner that drops a channel.
     Hybrid,
 }
 
@@ -153,7 +153,7 @@ impl Method {
             ),
             Self::Hybrid => (
                 "hybrid",
-                "u-AIC, propagated prior, a bank of failure hypotheses for encoders and tachometers, gradient-learned camera",
+                "u-AIC; precisions of encoders, tachometers and camera from a bank of failure hypotheses; re-anchored belief",
                 false,
                 None,
             ),
@@ -255,7 +255,7 @@ pub fn build(method: Method, ctx: &MethodContext<'_>) -> Result<MethodParts, Sce
         Method::Imm => return Ok((Box::new(Imm::new(ekf(), kc, None, nominal)), fixed())),
         Method::Hybrid => {
             let mut belief = sc.controller.uaic(sc.dt);
-            belief.prior = PriorMode::Propagated;
+            belief.prior = sc.hybrid.prior;
             let uaic = Uaic::new(belief, *ctx.layout, ctx.setup.gp.clone(), sc.dt);
             let hybrid = crate::estimation::hybrid::build(
                 uaic,
