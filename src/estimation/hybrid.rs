@@ -940,7 +940,10 @@ mod tests {
         h.resync();
         assert_eq!(h.bank[7].x[0], 0.5, "a favoured swap keeps its state");
         assert_eq!(h.bank[2].x[0], 0.25, "a toggle restarts, favoured or not");
-        assert_eq!(h.bank[9].x[0], 0.25, "a swap the data do not favour restarts");
+        assert_eq!(
+            h.bank[9].x[0], 0.25,
+            "a swap the data do not favour restarts"
+        );
     }
 
     /// The belief is re-anchored only on a winner that drops a channel the last winner

@@ -20,7 +20,7 @@
 //! `sqrt(1 / alpha)` for `rearm_ticks` ticks (0: never; the ECC paper latches). A missing
 //! reading neither raises nor clears an alarm.
 
-use nalgebra::{DMatrix, DVector};
+use nalgebra::DMatrix;
 use serde::{Deserialize, Serialize};
 
 use crate::sensors::{ChannelLayout, SensorGroup};
@@ -439,6 +439,52 @@ pub struct Detector {
     /// Per channel: the alarm that isolated it.
     isolated_by: Vec<Option<usize>>,
     scratch: Vec<f64>,
+    /// Scratch of the test over a group's channels not isolated: the Cholesky factor of their
+    /// covariance (row-major, k x k) and the forward substitution.
+    factor: Vec<f64>,
+    solved: Vec<f64>,
+}
+
+/// r' C_A^-1 r for the sub-covariance C_A of `covariance` (dim x dim, row-major) on the indices
+/// `active`, r = `x` on them: C_A = L L' factorised in `factor` (Cholesky-Banachiewicz), then
+/// L y = r solved in `solved`, and the form is y'y. Works in the caller's storage (no
+/// allocation); None when C_A is not positive definite.
+fn sub_quadratic_form(
+    covariance: &[f64],
+    dim: usize,
+    active: &[usize],
+    x: &[f64],
+    factor: &mut [f64],
+    solved: &mut [f64],
+) -> Option<f64> {
+    let k = active.len();
+    let l = &mut factor[..k * k];
+    for i in 0..k {
+        for j in 0..=i {
+            let mut s = covariance[active[i] * dim + active[j]];
+            for m in 0..j {
+                s -= l[i * k + m] * l[j * k + m];
+            }
+            if i == j {
+                if !(s > 0.0 && s.is_finite()) {
+                    return None;
+                }
+                l[i * k + i] = s.sqrt();
+            } else {
+                l[i * k + j] = s / l[j * k + j];
+            }
+        }
+    }
+    let mut q = 0.0;
+    for i in 0..k {
+        let mut s = x[active[i]];
+        for m in 0..i {
+            s -= l[i * k + m] * solved[m];
+        }
+        solved[i] = s / l[i * k + i];
+        q += solved[i] * solved[i];
+    }
+    Some(q)
 }
 
 impl Detector {
@@ -491,13 +537,19 @@ impl Detector {
             cusum_threshold: config.cusum_threshold,
             cusum: vec![(0.0, 0.0); layout.len()],
             active: Vec::with_capacity(layout.len()),
+            // Room for the first alarms and every channel isolated at once: raising an alarm
+            // allocates only its own channel list.
             state: Detection {
+                alarms: Vec::with_capacity(64),
+                isolated: Vec::with_capacity(layout.len()),
                 normalised_distance: vec![None; layout.groups().len()],
                 ..Detection::default()
             },
             quiet: vec![0; layout.len()],
             isolated_by: vec![None; layout.len()],
             scratch: vec![0.0; layout.len()],
+            factor: vec![0.0; layout.len() * layout.len()],
+            solved: vec![0.0; layout.len()],
         }
     }
 
@@ -601,13 +653,16 @@ impl Detector {
                 }
                 q
             } else {
-                let k = active.len();
-                let sub = DMatrix::from_fn(k, k, |a, b| {
-                    test.covariance[(t * dim + active[a]) * dim + active[b]]
-                });
-                let x = DVector::from_fn(k, |a, _| self.scratch[active[a]]);
-                match sub.cholesky() {
-                    Some(ch) => ch.solve(&x).dot(&x),
+                let covariance = &test.covariance[t * dim * dim..(t + 1) * dim * dim];
+                match sub_quadratic_form(
+                    covariance,
+                    dim,
+                    &active,
+                    &self.scratch,
+                    &mut self.factor,
+                    &mut self.solved,
+                ) {
+                    Some(q) => q,
                     None => continue,
                 }
             };
@@ -664,6 +719,7 @@ impl Detector {
 mod tests {
     use super::*;
     use crate::sensors::CameraModel;
+    use nalgebra::DVector;
 
     fn layout() -> ChannelLayout {
         ChannelLayout::new(1, CameraModel::Pinhole)
@@ -691,6 +747,32 @@ mod tests {
             })
             .collect();
         Calibration::from_runs(layout, &runs, 1e-3, 2, "test".into())
+    }
+
+    /// The in-place quadratic form over a sub-covariance against nalgebra's Cholesky solve,
+    /// and None for a sub-covariance that is not positive definite.
+    #[test]
+    fn the_sub_covariance_form_matches_a_cholesky_solve() {
+        let dim = 4;
+        let a = DMatrix::from_fn(dim, dim, |i, j| ((i * 7 + j * 3) % 5) as f64 - 2.0);
+        let c = &a * a.transpose() + DMatrix::identity(dim, dim) * 0.5;
+        let row_major: Vec<f64> = (0..dim * dim).map(|i| c[(i / dim, i % dim)]).collect();
+        let x = [0.3, -1.2, 0.7, 2.0];
+        let (mut factor, mut solved) = (vec![0.0; 16], vec![0.0; 4]);
+        for active in [vec![0, 1, 2, 3], vec![0, 2, 3], vec![1, 3], vec![2]] {
+            let k = active.len();
+            let sub = DMatrix::from_fn(k, k, |i, j| c[(active[i], active[j])]);
+            let r = DVector::from_fn(k, |i, _| x[active[i]]);
+            let reference = sub.cholesky().unwrap().solve(&r).dot(&r);
+            let q =
+                sub_quadratic_form(&row_major, dim, &active, &x, &mut factor, &mut solved).unwrap();
+            assert!(
+                (q - reference).abs() <= 1e-12 * reference,
+                "{active:?}: {q} vs {reference}"
+            );
+        }
+        let singular = vec![1.0, 1.0, 1.0, 1.0];
+        assert!(sub_quadratic_form(&singular, 2, &[0, 1], &x, &mut factor, &mut solved).is_none());
     }
 
     /// The calibrated per-tick covariance against the generator's, a Monte Carlo check.
