@@ -242,6 +242,21 @@ fn errors_name_the_key_and_the_set_that_gave_it() {
         d,
         "o",
     );
+    // The hybrid's propagated prior needs the Gauss-Newton update, like the controller's.
+    refused(
+        &[
+            "run",
+            "--set",
+            "hybrid.prior=\"propagated\"",
+            "--set",
+            "controller.update=\"gradient\"",
+            "--out",
+            "o",
+        ],
+        &["hybrid.prior", "gauss-newton"],
+        d,
+        "o",
+    );
     // A newline in a --set value would smuggle in a second key.
     refused(
         &["run", "--set", "seed=2\nduration=1.0", "--out", "o"],

@@ -106,11 +106,12 @@ pub struct HybridConfig {
     /// Re-anchor the belief when another hypothesis wins that holds failed a channel the last
     /// winner trusted, and the belief lies outside its 3-sigma ellipsoid.
     pub reanchor: bool,
-    /// The belief's state prior: the u-AIC's fixed P_mu, P_mu' (the paper's, default), or the
-    /// propagated prior (a Kalman filter's covariance). Measured in docs/method.md, "The
-    /// hybrid": the propagated prior lowers the belief error of healthy runs by about a fifth
-    /// but integrates a tachometer's scale error and the camera model's bias into the
-    /// position once an encoder is dropped.
+    /// The belief's state prior (the hybrid's own; `controller.prior` sets the other u-AIC
+    /// methods'): the u-AIC's fixed P_mu, P_mu' (the paper's, default), or the propagated prior
+    /// (a Kalman filter's covariance; needs `controller.update = "gauss-newton"`). Measured in
+    /// docs/method.md, "The hybrid": the propagated prior lowers the belief error of healthy
+    /// runs by about a fifth, but it integrates a tachometer's scale error into the position,
+    /// and once an encoder is dropped it leans on the camera model's bias.
     pub prior: PriorMode,
     /// The weight of "stuck at its last reading" in a failed channel's reading model: a failed
     /// reading is, with this probability, the last one again (to within `stuck_width`), else
@@ -946,11 +947,12 @@ mod tests {
         );
     }
 
-    /// The belief is re-anchored only on a winner that drops a channel the last winner
-    /// trusted: a swap or a new failure does, a failure that ended or a withdrawn blame does
-    /// not (the belief takes the channel back through its precision).
+    /// The rule behind re-anchoring (`distrusts_more`, the belief is re-anchored only on a
+    /// winner that drops a channel the last winner trusted): a swap or a new failure does, a
+    /// failure that ended or a withdrawn blame does not. This tests the rule, not its call in
+    /// `update`.
     #[test]
-    fn only_a_winner_that_drops_a_trusted_channel_re_anchors() {
+    fn the_re_anchoring_rule_only_takes_a_winner_that_drops_a_trusted_channel() {
         let mut h = toy_hybrid();
         // Slots 0 (nothing failed) and 3 (tach1 failed).
         assert!(h.distrusts_more(3, 0));

@@ -537,8 +537,8 @@ impl Detector {
             cusum_threshold: config.cusum_threshold,
             cusum: vec![(0.0, 0.0); layout.len()],
             active: Vec::with_capacity(layout.len()),
-            // Room for the first alarms and every channel isolated at once: raising an alarm
-            // allocates only its own channel list.
+            // Room for the first 64 alarms and every channel isolated at once: raising one of
+            // those allocates only its own channel list (later alarms may grow the list).
             state: Detection {
                 alarms: Vec::with_capacity(64),
                 isolated: Vec::with_capacity(layout.len()),

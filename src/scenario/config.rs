@@ -214,7 +214,8 @@ pub struct ControllerConfig {
     /// Ticks over which the prior's precisions ramp up (0: no ramp).
     pub prior_warmup_ticks: u64,
     /// `fixed` (P_mu, P_mu') or `propagated` (a Kalman filter's prior precision, its process
-    /// noise from `acceleration_bound`).
+    /// noise from `acceleration_bound`). Every u-AIC method but `hybrid`, which takes
+    /// `hybrid.prior`.
     pub prior: crate::estimation::uaic::PriorMode,
     /// Finite action gain kappa_u (1/s); absent: u = f* (the authors' kappa_u -> infinity).
     pub kappa_u: Option<f64>,
@@ -647,6 +648,14 @@ impl Scenario {
         self.hybrid
             .validate()
             .map_err(|(f, m)| bad(&format!("hybrid.{f}"), m))?;
+        if self.hybrid.prior == crate::estimation::uaic::PriorMode::Propagated
+            && self.controller.update != UpdateScheme::GaussNewton
+        {
+            return Err(bad(
+                "hybrid.prior",
+                "\"propagated\" needs controller.update = \"gauss-newton\"".into(),
+            ));
+        }
         if self.faults.len() > MAX_FAULTS {
             return Err(bad("faults", format!("at most {MAX_FAULTS}")));
         }
