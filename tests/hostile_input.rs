@@ -257,6 +257,31 @@ fn errors_name_the_key_and_the_set_that_gave_it() {
         d,
         "o",
     );
+    // The Kalman baselines' process model: a typed choice, and the model's settings bounded.
+    refused(
+        &["run", "--set", "kalman.process_model=\"rk4\"", "--out", "o"],
+        &["kalman.process_model", "rk4"],
+        d,
+        "o",
+    );
+    refused(
+        &["run", "--set", "kalman.mass_scale=0.0", "--out", "o"],
+        &["kalman.mass_scale", "(0, 100]"],
+        d,
+        "o",
+    );
+    refused(
+        &[
+            "run",
+            "--set",
+            "kalman.model_relative_error=-1.0",
+            "--out",
+            "o",
+        ],
+        &["kalman.model_relative_error"],
+        d,
+        "o",
+    );
     // A newline in a --set value would smuggle in a second key.
     refused(
         &["run", "--set", "seed=2\nduration=1.0", "--out", "o"],

@@ -12,7 +12,7 @@
 
 use nalgebra::{DMatrix, DVector};
 
-use super::kalman::{ArmDynamics, Ekf, KalmanConfig, linearise_bank};
+use super::kalman::{Ekf, KalmanConfig, ModelPrediction, linearise_bank};
 use super::{Estimate, Estimator, EstimatorInput};
 
 /// The multiple-model estimator.
@@ -22,7 +22,12 @@ pub struct Imm {
     variances: Vec<Vec<f64>>,
     probability: Vec<f64>,
     switch: f64,
-    model: Option<ArmDynamics>,
+    model: Option<ModelPrediction>,
+    /// The manoeuvre hypothesis' index and its noise multiple (with the arm model, each joint's
+    /// process noise is scaled by it).
+    manoeuvre: Option<(usize, f64)>,
+    /// Scratch: the manoeuvre hypothesis' process noise.
+    manoeuvre_noise: Vec<f64>,
     nominal: Vec<f64>,
     x: DVector<f64>,
     p: DMatrix<f64>,
@@ -45,7 +50,7 @@ impl Imm {
     pub fn new(
         template: Ekf,
         config: &KalmanConfig,
-        model: Option<ArmDynamics>,
+        model: Option<ModelPrediction>,
         nominal: &[f64],
     ) -> Self {
         let m = nominal.len();
@@ -79,6 +84,8 @@ impl Imm {
             probability,
             switch: config.imm_switch,
             model,
+            manoeuvre: manoeuvre.then_some((m + 1, config.imm_manoeuvre)),
+            manoeuvre_noise: vec![0.0; n],
             nominal: nominal.to_vec(),
             x: DVector::zeros(d),
             p: DMatrix::zeros(d, d),
@@ -179,20 +186,31 @@ impl Estimator for Imm {
             for p in &mut self.probability {
                 *p = stay * *p + leave * (total - *p);
             }
-            // One model acceleration per tick, at the combined belief.
-            let acc = match &mut self.model {
-                Some(model) => {
-                    let n = self.n;
-                    model.acceleration(
-                        &self.x.as_slice()[..n],
-                        &self.x.as_slice()[n..],
-                        input.applied_torques,
-                    )
+            // One model acceleration and process noise per tick, at the combined belief (the
+            // manoeuvre hypothesis' noise scaled by its multiple).
+            match self
+                .model
+                .as_mut()
+                .and_then(|m| m.at(self.x.as_slice(), input.applied_torques))
+            {
+                Some((acc, noise)) => {
+                    for (j, f) in self.filters.iter_mut().enumerate() {
+                        match self.manoeuvre {
+                            Some((k, scale)) if k == j => {
+                                for (s, v) in self.manoeuvre_noise.iter_mut().zip(noise) {
+                                    *s = scale * v;
+                                }
+                                f.predict_with_noise(Some(acc), Some(&self.manoeuvre_noise));
+                            }
+                            _ => f.predict_with_noise(Some(acc), Some(noise)),
+                        }
+                    }
                 }
-                None => None,
-            };
-            for f in &mut self.filters {
-                f.predict(acc);
+                None => {
+                    for f in &mut self.filters {
+                        f.predict(None);
+                    }
+                }
             }
         }
         linearise_bank(&mut self.filters, None);

@@ -53,6 +53,31 @@ pub struct KalmanConfig {
     /// acceleration): nothing is gated that tick and the covariance is inflated by the largest
     /// normalised innovation squared of the channels in use (a fading factor); 0: never.
     pub common_mode: usize,
+    /// The filters' transition model: constant velocity with `acceleration_noise` (default, as
+    /// in the textbook baselines), or the arm's own dynamics driven by the applied torques, the
+    /// model the hybrid's bank uses (the same process noise: max(`model_acceleration_noise`,
+    /// `model_relative_error` x |predicted acceleration|) per joint).
+    pub process_model: ProcessModel,
+    /// With the dynamics model: the model's masses and inertias as a multiple of the URDF's.
+    pub mass_scale: f64,
+    /// With the dynamics model: the acceleration error (rad/s^2) taken as one standard
+    /// deviation at least (the hybrid's default).
+    pub model_acceleration_noise: f64,
+    /// With the dynamics model: the relative acceleration error (the hybrid's default).
+    pub model_relative_error: f64,
+}
+
+/// The Kalman baselines' transition model (`kalman.process_model`).
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema,
+)]
+#[serde(rename_all = "kebab-case")]
+pub enum ProcessModel {
+    /// Constant velocity with white acceleration noise.
+    #[default]
+    ConstantVelocity,
+    /// The arm's dynamics (the URDF's model, masses scaled by `mass_scale`) and applied torques.
+    Dynamics,
 }
 
 impl Default for KalmanConfig {
@@ -68,6 +93,10 @@ impl Default for KalmanConfig {
             imm_broad: 1000.0,
             imm_manoeuvre: 10.0,
             common_mode: 2,
+            process_model: ProcessModel::ConstantVelocity,
+            mass_scale: 1.0,
+            model_acceleration_noise: 2.0,
+            model_relative_error: 0.1,
         }
     }
 }
@@ -113,6 +142,20 @@ impl KalmanConfig {
         if self.common_mode > 1_000_000 {
             return Err(("common_mode", "must be <= 1000000".into()));
         }
+        if !(self.mass_scale.is_finite() && self.mass_scale > 0.0 && self.mass_scale <= 100.0) {
+            return Err(("mass_scale", "must be in (0, 100]".into()));
+        }
+        if !(self.model_acceleration_noise.is_finite()
+            && self.model_acceleration_noise > 0.0
+            && self.model_acceleration_noise <= 1e9)
+        {
+            return Err(("model_acceleration_noise", "must be in (0, 1e9]".into()));
+        }
+        if !(self.model_relative_error.is_finite()
+            && (0.0..=10.0).contains(&self.model_relative_error))
+        {
+            return Err(("model_relative_error", "must be in [0, 10]".into()));
+        }
         Ok(())
     }
 }
@@ -153,6 +196,43 @@ impl ArmDynamics {
 
     pub fn damping(&self) -> &[f64] {
         &self.damping
+    }
+}
+
+/// The classical filters' model-based prediction (`kalman.process_model = "dynamics"`): the
+/// arm's acceleration under the applied torques and each joint's process noise
+/// max(floor, relative x |qdd|), as the hybrid's bank predicts (docs/method.md, "Classical
+/// baselines").
+pub struct ModelPrediction {
+    dynamics: ArmDynamics,
+    floor: f64,
+    relative: f64,
+    noise: Vec<f64>,
+}
+
+impl ModelPrediction {
+    /// The prediction `config` asks for on `model`, or None for constant velocity.
+    pub fn from_config(config: &KalmanConfig, model: &ArmModel, gravity: [f64; 3]) -> Option<Self> {
+        match config.process_model {
+            ProcessModel::ConstantVelocity => None,
+            ProcessModel::Dynamics => Some(Self {
+                dynamics: ArmDynamics::new(model, gravity, config.mass_scale),
+                floor: config.model_acceleration_noise,
+                relative: config.model_relative_error,
+                noise: vec![0.0; model.joints.len()],
+            }),
+        }
+    }
+
+    /// The model's acceleration at `x` = [q, qd] under `torques` and each joint's process noise
+    /// (rad/s^2); None if the mass matrix is singular there.
+    pub fn at(&mut self, x: &[f64], torques: &[f64]) -> Option<(&[f64], &[f64])> {
+        let n = self.noise.len();
+        let acc = self.dynamics.acceleration(&x[..n], &x[n..], torques)?;
+        for (s, a) in self.noise.iter_mut().zip(acc) {
+            *s = self.floor.max(self.relative * a.abs());
+        }
+        Some((acc, &self.noise))
     }
 }
 
@@ -464,7 +544,7 @@ pub fn variances_of(precisions: &[f64], out: &mut [f64]) {
 pub struct EkfGate {
     ekf: Ekf,
     config: KalmanConfig,
-    model: Option<ArmDynamics>,
+    model: Option<ModelPrediction>,
     variances: Vec<f64>,
     used: Vec<f64>,
     beyond: Vec<u64>,
@@ -479,7 +559,7 @@ pub struct EkfGate {
 }
 
 impl EkfGate {
-    pub fn new(ekf: Ekf, config: KalmanConfig, model: Option<ArmDynamics>) -> Self {
+    pub fn new(ekf: Ekf, config: KalmanConfig, model: Option<ModelPrediction>) -> Self {
         let layout = ekf.layout;
         let m = layout.len();
         let n = layout.n_joints();
@@ -502,15 +582,11 @@ impl EkfGate {
     }
 }
 
-/// Predicts an EKF one tick with or without the arm model.
-fn predict_with(ekf: &mut Ekf, model: &mut Option<ArmDynamics>, torques: &[f64]) {
-    let n = ekf.n();
-    match model {
-        Some(m) => {
-            let x = ekf.x.as_slice();
-            let acc = m.acceleration(&x[..n], &x[n..], torques);
-            ekf.predict(acc);
-        }
+/// Predicts an EKF one tick with the arm model (its acceleration and process noise at the
+/// filter's mean), or at constant velocity without one or where the model is singular.
+fn predict_with(ekf: &mut Ekf, model: &mut Option<ModelPrediction>, torques: &[f64]) {
+    match model.as_mut().and_then(|m| m.at(ekf.x.as_slice(), torques)) {
+        Some((acc, noise)) => ekf.predict_with_noise(Some(acc), Some(noise)),
         None => ekf.predict(None),
     }
 }
@@ -641,7 +717,7 @@ pub struct VbAkf {
     ekf: Ekf,
     rho: f64,
     iterations: usize,
-    model: Option<ArmDynamics>,
+    model: Option<ModelPrediction>,
     nominal: Vec<f64>,
     alpha: Vec<f64>,
     beta: Vec<f64>,
@@ -663,7 +739,7 @@ impl VbAkf {
     pub fn new(
         ekf: Ekf,
         config: &KalmanConfig,
-        model: Option<ArmDynamics>,
+        model: Option<ModelPrediction>,
         nominal: &[f64],
         min_ratio: f64,
     ) -> Self {
@@ -805,6 +881,41 @@ mod tests {
 
     fn toy_gp() -> Arc<GpModel> {
         Arc::new(GpModel::toy())
+    }
+
+    /// `kalman.process_model`: none for constant velocity; with the dynamics, the arm's own
+    /// acceleration and the process noise max(floor, relative |qdd|) per joint, and the EKF's
+    /// prediction x + dt v + dt^2 a / 2 with them.
+    #[test]
+    fn the_dynamics_process_model_predicts_with_the_arms_acceleration() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("urdf/planar_2dof.urdf");
+        let model = crate::plant::load_urdf(&path).unwrap();
+        let g = [0.0, 0.0, -9.81];
+        let mut config = KalmanConfig::default();
+        assert!(ModelPrediction::from_config(&config, &model, g).is_none());
+        config.process_model = ProcessModel::Dynamics;
+        let mut prediction = ModelPrediction::from_config(&config, &model, g).unwrap();
+        let (q, qd, u) = ([0.3, -0.7], [0.5, -1.0], [40.0, -3.0]);
+        let x = [q[0], q[1], qd[0], qd[1]];
+        let mut direct = ArmDynamics::new(&model, g, 1.0);
+        let expected = direct.acceleration(&q, &qd, &u).unwrap().to_vec();
+        let (acc, noise) = prediction.at(&x, &u).unwrap();
+        assert_eq!(acc, expected.as_slice());
+        for (s, a) in noise.iter().zip(&expected) {
+            assert_eq!(*s, f64::max(2.0, 0.1 * a.abs()));
+        }
+        assert!(expected.iter().any(|a| 0.1 * a.abs() > 2.0), "{expected:?}");
+        let layout = ChannelLayout::new(2, CameraModel::Pinhole);
+        let mut ekf = Ekf::new(layout, toy_gp(), 1e-3, 200.0);
+        ekf.x.copy_from_slice(&x);
+        let mut model = Some(prediction);
+        predict_with(&mut ekf, &mut model, &u);
+        for i in 0..2 {
+            let dt = 1e-3;
+            let want = x[i] + dt * x[2 + i] + 0.5 * dt * dt * expected[i];
+            assert!((ekf.x[i] - want).abs() < 1e-15, "{} {want}", ekf.x[i]);
+            assert!((ekf.x[2 + i] - (x[2 + i] + dt * expected[i])).abs() < 1e-15);
+        }
     }
 
     /// The EKF's innovation covariance S = H P H' + R against a Monte Carlo estimate: a 2-joint

@@ -12,7 +12,7 @@ use serde::{Deserialize, Serialize};
 use super::{RunSetup, ScenarioError};
 use crate::estimation::Estimator;
 use crate::estimation::imm::Imm;
-use crate::estimation::kalman::{Ekf, EkfGate, VbAkf};
+use crate::estimation::kalman::{Ekf, EkfGate, ModelPrediction, VbAkf};
 use crate::estimation::uaic::Uaic;
 use crate::precision::{
     Bayes, Calibration, Detector, Deterministic, Fixed, GatedLearning, Gradient, Oracle, PerGroup,
@@ -242,17 +242,23 @@ pub fn build(method: Method, ctx: &MethodContext<'_>) -> Result<MethodParts, Sce
         )
     };
     let fixed = || -> Box<dyn PrecisionMethod> { Box::new(Fixed::new(nominal)) };
+    let process = || ModelPrediction::from_config(kc, &ctx.setup.model, sc.robot.gravity);
     match method {
         Method::EkfGate => {
-            return Ok((Box::new(EkfGate::new(ekf(), kc.clone(), None)), fixed()));
-        }
-        Method::VbAkf => {
             return Ok((
-                Box::new(VbAkf::new(ekf(), kc, None, nominal, bounds.min_ratio)),
+                Box::new(EkfGate::new(ekf(), kc.clone(), process())),
                 fixed(),
             ));
         }
-        Method::Imm => return Ok((Box::new(Imm::new(ekf(), kc, None, nominal)), fixed())),
+        Method::VbAkf => {
+            return Ok((
+                Box::new(VbAkf::new(ekf(), kc, process(), nominal, bounds.min_ratio)),
+                fixed(),
+            ));
+        }
+        Method::Imm => {
+            return Ok((Box::new(Imm::new(ekf(), kc, process(), nominal)), fixed()));
+        }
         Method::Hybrid => {
             let mut belief = sc.controller.uaic(sc.dt);
             belief.prior = sc.hybrid.prior;
