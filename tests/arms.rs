@@ -122,7 +122,7 @@ fn init_writes_a_scenario_that_reaches_its_targets_under_every_method() {
         );
         let text = std::fs::read_to_string(&out).unwrap();
         assert!(
-            text.contains("# PID from the largest diagonal inertia"),
+            text.contains("# PID from the largest row sum of |M|"),
             "{text}"
         );
         let setup = RunSetup::prepare(LoadedScenario::from_file(&out, &[]).unwrap()).unwrap();
@@ -134,4 +134,39 @@ fn init_writes_a_scenario_that_reaches_its_targets_under_every_method() {
         }
     }
     assert!(failures.is_empty(), "{failures:#?}");
+}
+
+/// An arm from outside the project: a Kinova Jaco2 (`tests/data/kinova_j2s6s200.urdf`, no joint
+/// damping, wrist joints of 1e-3 kg m^2 under a 1.5 kg m^2 shoulder, three continuous joints, a
+/// gripper). `aift init`'s gains hold it: without fault tolerance it ends within 0.01 rad of its
+/// targets on the articulated engine (the diagonal-inertia rule of 2026-12-01 left the wrist
+/// 0.42 rad off), and the end effector goes on the link named as one, not on a finger.
+#[test]
+fn init_gains_hold_a_light_wristed_arm_from_outside_the_project() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("jaco2.toml");
+    let o = common::aift_ok(
+        &[
+            "init",
+            "--urdf",
+            common::repo("tests/data/kinova_j2s6s200.urdf")
+                .to_str()
+                .unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ],
+        tmp.path(),
+    );
+    assert!(o.status.success());
+    let text = std::fs::read_to_string(&out).unwrap();
+    assert!(
+        text.contains("ee_link = \"j2s6s200_end_effector\""),
+        "{text}"
+    );
+    let loaded = LoadedScenario::from_file(&out, &["robot.engine=\"articulated\"".into()]).unwrap();
+    let setup = RunSetup::prepare(loaded).unwrap();
+    let (r, _) = common::run_recorded(&setup, Method::NoFt, 1, None);
+    eprintln!("jaco2 no-ft: final error {:?}", r.final_error_per_joint);
+    assert_eq!(r.outcome.name(), "completed");
+    assert!(r.max_final_error < 0.01, "{:?}", r.final_error_per_joint);
 }

@@ -5,13 +5,19 @@
 //!   limits (+-0.3 rad, alternating per joint, moved inward where the range is narrow).
 //! - PID gains from the arm's own inertia: the mass matrix M and gravity torque G are measured
 //!   from the simulator at the start and the targets ([`crate::plant::Arm::probe_dynamics`]);
-//!   with the largest diagonal inertia m_i seen and the joint's damping D_i,
-//!   kp_i = max(m_i w^2, D_i w / 2) (the second where the joint's own damping would make the loop
-//!   slower than w / 2), kd_i = max(0, 2 zeta sqrt(kp_i m_i) - D_i) (damping ratio zeta with the
-//!   plant's damping counted), ki_i = kp_i w / 8 (integral time 8 / w), w = 8 rad/s and
-//!   zeta = 0.9 (w dt << 1, so the discrete loop is far from its stability limit at any
-//!   dt <= 10 ms); w lowered, and kp capped, where a 0.5 rad error would ask for more than the
-//!   joint's effort limit.
+//!   with the largest row sum m_i = sum_j |M_ij| seen (the torque joint i meets when every joint
+//!   accelerates at 1 rad/s^2: its own inertia plus the reaction of the others' motion, which on
+//!   a light wrist under a heavy shoulder is many times the diagonal), the largest gravity torque
+//!   G_i and the joint's damping D_i, kp_i = max(m_i w^2, D_i w / 2, G_i / 0.05 rad) (the second
+//!   where the joint's own damping would make the loop slower than w / 2, the third so that
+//!   gravity alone bends the joint at most 0.05 rad before the integral acts),
+//!   kd_i = max(0, 2 zeta sqrt(kp_i m_i) - D_i) (damping ratio zeta with the plant's damping
+//!   counted), ki_i = kp_i w / 8 (integral time 8 / w), w = 8 rad/s and zeta = 0.9 (w dt << 1, so
+//!   the discrete loop is far from its stability limit at any dt <= 10 ms); w lowered, and kp
+//!   capped, where a 0.5 rad error would ask for more than the joint's effort limit. (Until
+//!   2026-12-02 m_i was the diagonal M_ii and gravity was left to the integral: a Kinova Jaco2's
+//!   wrist got kp 0.05-2 N m/rad and swung 0.8-2.6 rad off its targets; `panda_healthy.toml` was
+//!   written by that rule.)
 //! - Integral limit: 1.5 x the largest gravity torque seen (at least 1 N m), capped at the effort.
 //! - Camera: a pinhole looking along the axis in which the end effector moves least over the
 //!   training box (the smallest principal axis of 200 sampled positions), from 3 x the extent of
@@ -52,6 +58,9 @@ const ZETA: f64 = 0.9;
 const ERROR_SPAN: f64 = 0.5;
 /// Target offsets from the start (rad).
 const STEP: f64 = 0.3;
+/// The most gravity alone may bend a joint from its set point under the proportional gain
+/// (rad); the integral removes the rest.
+const GRAVITY_SAG: f64 = 0.05;
 
 fn fmt_list(v: &[f64]) -> String {
     let items: Vec<String> = v.iter().map(|x| format_number(*x)).collect();
@@ -75,19 +84,32 @@ fn format_number(x: f64) -> String {
     }
 }
 
-/// The link the end effector goes on by default: `ee`, else the last link in file order on the
-/// body of the last movable joint.
+/// The link the end effector goes on by default: `ee`, else, on the body of the last movable
+/// joint, the first link (in file order) whose name says it is the tool point (`end_effector`,
+/// `tcp`, `tool`, `flange`, in that order of preference), else the last link there in file order
+/// (a gripper's fingers come after the flange in many URDFs).
 fn default_ee(model: &ArmModel) -> String {
     if model.link("ee").is_some() {
         return "ee".into();
     }
     let last = model.joints.last().map_or(0, |j| j.child_body);
-    model
+    let on_last: Vec<&str> = model
         .links
         .iter()
-        .rev()
-        .find(|l| l.body == last)
-        .map_or_else(|| model.bodies[last].link.clone(), |l| l.name.clone())
+        .filter(|l| l.body == last)
+        .map(|l| l.name.as_str())
+        .collect();
+    for hint in ["end_effector", "tcp", "tool", "flange"] {
+        if let Some(name) = on_last
+            .iter()
+            .find(|name| name.to_ascii_lowercase().contains(hint))
+        {
+            return name.to_string();
+        }
+    }
+    on_last
+        .last()
+        .map_or_else(|| model.bodies[last].link.clone(), |name| name.to_string())
 }
 
 /// Writes a healthy scenario for the arm in `urdf` (as TOML text with comments).
@@ -142,12 +164,16 @@ pub fn init_scenario(urdf: &Path, options: &InitOptions) -> Result<String, Scena
             ..ArmOptions::default()
         },
     )?;
+    // Per joint: the largest diagonal inertia, the largest row sum of |M| and the largest
+    // gravity torque seen.
+    let mut m_diag = vec![0.0f64; n];
     let mut m_max = vec![0.0f64; n];
     let mut g_max = vec![0.0f64; n];
     for q in [&q0, &t1, &t2] {
         let (m, g) = arm.probe_dynamics(q, dt);
         for i in 0..n {
-            m_max[i] = m_max[i].max(m[(i, i)]);
+            m_diag[i] = m_diag[i].max(m[(i, i)]);
+            m_max[i] = m_max[i].max((0..n).map(|j| m[(i, j)].abs()).sum::<f64>());
             g_max[i] = g_max[i].max(g[i].abs());
         }
     }
@@ -163,7 +189,7 @@ pub fn init_scenario(urdf: &Path, options: &InitOptions) -> Result<String, Scena
         }
         // Where the joint's own damping dominates (kd + D >> 2 zeta m w), the slow pole sits at
         // kp / (kd + D): kp is raised so that it is no slower than w / 2.
-        kp[i] = (m * w * w).max(0.5 * d * w);
+        kp[i] = (m * w * w).max(0.5 * d * w).max(g_max[i] / GRAVITY_SAG);
         if let Some(e) = j.effort {
             kp[i] = kp[i].min(e / ERROR_SPAN);
         }
@@ -171,7 +197,8 @@ pub fn init_scenario(urdf: &Path, options: &InitOptions) -> Result<String, Scena
         ki[i] = kp[i] * w / 8.0;
         let limit = (1.5 * g_max[i]).max(1.0);
         ilim[i] = j.effort.map_or(limit, |e| limit.min(e));
-        accel = accel.max(kp[i] * STEP / m);
+        // The joint alone answers a step with its own inertia.
+        accel = accel.max(kp[i] * STEP / m_diag[i].max(1e-6));
     }
     let acceleration_bound = accel.max(super::config::DEFAULT_ACCELERATION_BOUND);
 
@@ -308,7 +335,7 @@ pub fn init_scenario(urdf: &Path, options: &InitOptions) -> Result<String, Scena
     );
     let _ = writeln!(
         w,
-        "# PID from the largest diagonal inertia m_i measured at the start and targets ({})\n# and the joint damping D_i: kp = max(m w^2, D w / 2), kd = max(0, 2 zeta sqrt(kp m) - D), ki = kp w / 8,\n# w = {OMEGA} rad/s (lower where a {ERROR_SPAN} rad error would exceed the effort limit), zeta = {ZETA}; the\n# integral is clamped at 1.5 x the largest gravity torque measured ({}), at least 1 N m, at most the\n# effort limit.",
+        "# PID from the largest row sum of |M| m_i = sum_j |M_ij| measured at the start and targets\n# (the joint's inertia with the reaction of the others' motion: {}), the largest gravity\n# torque G_i ({}) and the joint damping D_i: kp = max(m w^2, D w / 2, G / {GRAVITY_SAG} rad),\n# kd = max(0, 2 zeta sqrt(kp m) - D), ki = kp w / 8, w = {OMEGA} rad/s (lower where a {ERROR_SPAN} rad error would\n# exceed the effort limit), zeta = {ZETA}; the integral is clamped at 1.5 x G, at least 1 N m, at most the\n# effort limit.",
         fmt_list(&m_max),
         fmt_list(&g_max)
     );

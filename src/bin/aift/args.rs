@@ -105,7 +105,7 @@ pub struct InitArgs {
     /// The URDF of the arm.
     #[arg(long)]
     pub urdf: PathBuf,
-    /// End-effector link (default: `ee`, else the last link of the chain).
+    /// End-effector link (default: `ee`, else a link of the last moving body named end_effector, tcp, tool or flange, else its last link).
     #[arg(long)]
     pub ee: Option<String>,
     /// Repair inertias that break the triangle inequality.
