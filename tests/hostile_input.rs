@@ -257,6 +257,20 @@ fn errors_name_the_key_and_the_set_that_gave_it() {
         d,
         "o",
     );
+    refused(
+        &[
+            "run",
+            "--set",
+            "hybrid.prior=\"fixed-until-tachometer-fails\"",
+            "--set",
+            "controller.update=\"gradient\"",
+            "--out",
+            "o",
+        ],
+        &["hybrid.prior", "gauss-newton"],
+        d,
+        "o",
+    );
     // The Kalman baselines' process model: a typed choice, and the model's settings bounded.
     refused(
         &["run", "--set", "kalman.process_model=\"rk4\"", "--out", "o"],

@@ -65,6 +65,37 @@ pub enum BankModel {
     Dynamics,
 }
 
+/// The hybrid's state prior (`hybrid.prior`).
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema,
+)]
+#[serde(rename_all = "kebab-case")]
+pub enum HybridPrior {
+    /// The paper's fixed P_mu, P_mu'.
+    #[default]
+    Fixed,
+    /// The propagated prior throughout.
+    Propagated,
+    /// Fixed while the winning hypothesis trusts every tachometer, propagated while it holds one
+    /// failed.
+    FixedUntilTachometerFails,
+}
+
+impl HybridPrior {
+    /// Whether the u-AIC's propagated prior is ever used (it needs the Gauss-Newton update).
+    pub fn may_propagate(self) -> bool {
+        self != Self::Fixed
+    }
+
+    /// The u-AIC's prior at the start of a run.
+    pub fn initial(self) -> PriorMode {
+        match self {
+            Self::Propagated => PriorMode::Propagated,
+            Self::Fixed | Self::FixedUntilTachometerFails => PriorMode::Fixed,
+        }
+    }
+}
+
 /// How the hybrid sets the camera's precisions.
 #[derive(
     Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema,
@@ -111,8 +142,13 @@ pub struct HybridConfig {
     /// (a Kalman filter's covariance; needs `controller.update = "gauss-newton"`). Measured in
     /// docs/method.md, "The hybrid": the propagated prior lowers the belief error of healthy
     /// runs by about a fifth, but it integrates a tachometer's scale error into the position,
-    /// and once an encoder is dropped it leans on the camera model's bias.
-    pub prior: PriorMode,
+    /// and once an encoder is dropped it leans on the camera model's bias. A third choice,
+    /// `fixed-until-tachometer-fails`: the fixed prior while the bank's most probable hypothesis
+    /// trusts every tachometer, the propagated one while it holds a tachometer failed (without
+    /// its tachometer a joint's velocity comes from differences of encoder readings, which the
+    /// fixed prior turns into a noisy mu' the PID's damping term amplifies on an undamped arm;
+    /// measured in docs/method.md, "The hybrid").
+    pub prior: HybridPrior,
     /// The weight of "stuck at its last reading" in a failed channel's reading model: a failed
     /// reading is, with this probability, the last one again (to within `stuck_width`), else
     /// broad noise. A frozen or stuck sensor repeats its reading exactly, which healthy noise
@@ -145,7 +181,7 @@ impl Default for HybridConfig {
             camera: CameraPrecision::Bank,
             camera_broad: 10.0,
             reanchor: true,
-            prior: PriorMode::Fixed,
+            prior: HybridPrior::Fixed,
             stuck_weight: 0.01,
             stuck_width: 1e-3,
             resync_ticks: 500,
@@ -764,6 +800,17 @@ impl Estimator for Hybrid {
             self.winner = 0;
         } else if due {
             self.resync();
+        }
+        if self.config.prior == HybridPrior::FixedUntilTachometerFails {
+            let tachometer_failed = (0..self.layout.len()).any(|c| {
+                matches!(self.layout.channel(c), Channel::Tachometer(_))
+                    && self.holds_failed(self.winner, c)
+            });
+            self.uaic.set_prior(if tachometer_failed {
+                PriorMode::Propagated
+            } else {
+                PriorMode::Fixed
+            });
         }
         self.uaic.step(input.readings, &self.precisions)
     }

@@ -221,6 +221,12 @@ impl Uaic {
         &self.config
     }
 
+    /// Switches the state prior from the next update on (the propagated prior starts from the
+    /// last update's posterior covariance).
+    pub fn set_prior(&mut self, prior: PriorMode) {
+        self.config.prior = prior;
+    }
+
     /// The belief x = [mu, mu'].
     pub fn belief(&self) -> &[f64] {
         self.x.as_slice()

@@ -648,12 +648,11 @@ impl Scenario {
         self.hybrid
             .validate()
             .map_err(|(f, m)| bad(&format!("hybrid.{f}"), m))?;
-        if self.hybrid.prior == crate::estimation::uaic::PriorMode::Propagated
-            && self.controller.update != UpdateScheme::GaussNewton
+        if self.hybrid.prior.may_propagate() && self.controller.update != UpdateScheme::GaussNewton
         {
             return Err(bad(
                 "hybrid.prior",
-                "\"propagated\" needs controller.update = \"gauss-newton\"".into(),
+                "the propagated prior needs controller.update = \"gauss-newton\"".into(),
             ));
         }
         if self.faults.len() > MAX_FAULTS {

@@ -261,7 +261,7 @@ pub fn build(method: Method, ctx: &MethodContext<'_>) -> Result<MethodParts, Sce
         }
         Method::Hybrid => {
             let mut belief = sc.controller.uaic(sc.dt);
-            belief.prior = sc.hybrid.prior;
+            belief.prior = sc.hybrid.prior.initial();
             let uaic = Uaic::new(belief, *ctx.layout, ctx.setup.gp.clone(), sc.dt);
             let hybrid = crate::estimation::hybrid::build(
                 uaic,
