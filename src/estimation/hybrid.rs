@@ -755,6 +755,26 @@ impl Hybrid {
 impl Estimator for Hybrid {
     fn update(&mut self, input: &EstimatorInput<'_>) -> &Estimate {
         self.step_bank(input);
+        // With `fixed-until-tachometer-fails`, the belief's prior follows the most probable
+        // hypothesis; while it is the propagated prior, a channel's precision is nominal x
+        // P(healthy) without the floor: the propagated prior's velocity belief is loose enough
+        // that a frozen tachometer at the floor precision would bias mu'.
+        let mut floor = self.floor;
+        if self.config.prior == HybridPrior::FixedUntilTachometerFails {
+            let winner = (0..self.bank.len())
+                .max_by(|&a, &b| self.probability[a].total_cmp(&self.probability[b]))
+                .unwrap_or(0);
+            let tachometer_failed = (0..self.layout.len()).any(|c| {
+                matches!(self.layout.channel(c), Channel::Tachometer(_))
+                    && self.holds_failed(winner, c)
+            });
+            if tachometer_failed {
+                self.uaic.set_prior(PriorMode::Propagated);
+                floor = 0.0;
+            } else {
+                self.uaic.set_prior(PriorMode::Fixed);
+            }
+        }
         // Channel precisions: the bank's posterior expectation for encoders and tachometers,
         // the learned precision for the camera.
         for c in 0..self.layout.len() {
@@ -769,7 +789,7 @@ impl Estimator for Hybrid {
                         .filter(|&j| self.active[j] && self.holds_failed(j, key))
                         .map(|j| self.probability[j])
                         .sum();
-                    self.nominal[c] * (1.0 - failed).max(self.floor)
+                    self.nominal[c] * (1.0 - failed).max(floor)
                 }
             };
         }
@@ -800,17 +820,6 @@ impl Estimator for Hybrid {
             self.winner = 0;
         } else if due {
             self.resync();
-        }
-        if self.config.prior == HybridPrior::FixedUntilTachometerFails {
-            let tachometer_failed = (0..self.layout.len()).any(|c| {
-                matches!(self.layout.channel(c), Channel::Tachometer(_))
-                    && self.holds_failed(self.winner, c)
-            });
-            self.uaic.set_prior(if tachometer_failed {
-                PriorMode::Propagated
-            } else {
-                PriorMode::Fixed
-            });
         }
         self.uaic.step(input.readings, &self.precisions)
     }
