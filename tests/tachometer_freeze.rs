@@ -81,14 +81,25 @@ fn the_hybrid_holds_an_undamped_ur5_through_a_tachometer_freeze_with_the_switche
         format!("{text}\n[[faults]]\nchannel = \"tach3\"\nkind = \"freeze\"\nstart = 4.0\n"),
     )
     .unwrap();
+    let engine = "robot.engine=\"articulated\"".to_string();
+    let loaded =
+        aift::scenario::LoadedScenario::from_file(&path, std::slice::from_ref(&engine)).unwrap();
+    let fixed = aift::scenario::RunSetup::prepare(loaded).unwrap();
+    // The option as a user gives it, parsed and validated; the camera model reused.
     let loaded = aift::scenario::LoadedScenario::from_file(
         &path,
-        &["robot.engine=\"articulated\"".to_string()],
+        &[
+            engine,
+            "hybrid.prior=\"fixed-until-tachometer-fails\"".to_string(),
+        ],
     )
     .unwrap();
-    let fixed = aift::scenario::RunSetup::prepare(loaded).unwrap();
+    assert_eq!(
+        loaded.scenario.hybrid.prior,
+        HybridPrior::FixedUntilTachometerFails
+    );
     let mut switched = fixed.clone();
-    switched.loaded.scenario.hybrid.prior = HybridPrior::FixedUntilTachometerFails;
+    switched.loaded = loaded;
     let (f, _) = run_recorded(&fixed, Method::Hybrid, 1, None);
     let (s, _) = run_recorded(&switched, Method::Hybrid, 1, None);
     eprintln!(

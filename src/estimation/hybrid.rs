@@ -82,6 +82,15 @@ pub enum HybridPrior {
 }
 
 impl HybridPrior {
+    /// The name a scenario gives it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Fixed => "fixed",
+            Self::Propagated => "propagated",
+            Self::FixedUntilTachometerFails => "fixed-until-tachometer-fails",
+        }
+    }
+
     /// Whether the u-AIC's propagated prior is ever used (it needs the Gauss-Newton update).
     pub fn may_propagate(self) -> bool {
         self != Self::Fixed
@@ -191,20 +200,11 @@ impl Default for HybridConfig {
 
 impl HybridConfig {
     pub fn validate(&self) -> Result<(), (&'static str, String)> {
-        if !(self.mass_scale.is_finite() && self.mass_scale > 0.0 && self.mass_scale <= 100.0) {
-            return Err(("mass_scale", "must be in (0, 100]".into()));
-        }
-        if !(self.model_acceleration_noise.is_finite()
-            && self.model_acceleration_noise > 0.0
-            && self.model_acceleration_noise <= 1e9)
-        {
-            return Err(("model_acceleration_noise", "must be in (0, 1e9]".into()));
-        }
-        if !(self.model_relative_error.is_finite()
-            && (0.0..=10.0).contains(&self.model_relative_error))
-        {
-            return Err(("model_relative_error", "must be in [0, 10]".into()));
-        }
+        super::kalman::validate_model_error(
+            self.mass_scale,
+            self.model_acceleration_noise,
+            self.model_relative_error,
+        )?;
         if !(self.switch > 0.0 && self.switch < 0.5) {
             return Err(("switch", "must be in (0, 0.5)".into()));
         }

@@ -26,8 +26,9 @@ use crate::sensors::{Channel, ChannelLayout, Readings};
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct KalmanConfig {
-    /// Process noise: the acceleration (rad/s^2) treated as one standard deviation; absent: the
-    /// u-AIC's `controller.acceleration_bound`.
+    /// Process noise of the constant-velocity model: the acceleration (rad/s^2) treated as one
+    /// standard deviation; absent: the u-AIC's `controller.acceleration_bound`. With
+    /// `process_model = "dynamics"` used only where the arm's mass matrix is singular.
     pub acceleration_noise: Option<f64>,
     /// Chi-square gate on a channel's normalised innovation nu^2 / S (1 degree of freedom;
     /// 10.83 is the 99.9 % point).
@@ -58,7 +59,8 @@ pub struct KalmanConfig {
     /// model the hybrid's bank uses (the same process noise: max(`model_acceleration_noise`,
     /// `model_relative_error` x |predicted acceleration|) per joint).
     pub process_model: ProcessModel,
-    /// With the dynamics model: the model's masses and inertias as a multiple of the URDF's.
+    /// With the dynamics model (ignored with constant velocity, as are the next two): the
+    /// model's masses and inertias as a multiple of the URDF's.
     pub mass_scale: f64,
     /// With the dynamics model: the acceleration error (rad/s^2) taken as one standard
     /// deviation at least (the hybrid's default).
@@ -142,22 +144,31 @@ impl KalmanConfig {
         if self.common_mode > 1_000_000 {
             return Err(("common_mode", "must be <= 1000000".into()));
         }
-        if !(self.mass_scale.is_finite() && self.mass_scale > 0.0 && self.mass_scale <= 100.0) {
-            return Err(("mass_scale", "must be in (0, 100]".into()));
-        }
-        if !(self.model_acceleration_noise.is_finite()
-            && self.model_acceleration_noise > 0.0
-            && self.model_acceleration_noise <= 1e9)
-        {
-            return Err(("model_acceleration_noise", "must be in (0, 1e9]".into()));
-        }
-        if !(self.model_relative_error.is_finite()
-            && (0.0..=10.0).contains(&self.model_relative_error))
-        {
-            return Err(("model_relative_error", "must be in [0, 10]".into()));
-        }
-        Ok(())
+        validate_model_error(
+            self.mass_scale,
+            self.model_acceleration_noise,
+            self.model_relative_error,
+        )
     }
+}
+
+/// The arm model's error settings, shared by `[kalman]` and `[hybrid]`: `mass_scale`,
+/// `model_acceleration_noise`, `model_relative_error`.
+pub fn validate_model_error(
+    mass_scale: f64,
+    acceleration_noise: f64,
+    relative_error: f64,
+) -> Result<(), (&'static str, String)> {
+    if !(mass_scale.is_finite() && mass_scale > 0.0 && mass_scale <= 100.0) {
+        return Err(("mass_scale", "must be in (0, 100]".into()));
+    }
+    if !(acceleration_noise.is_finite() && acceleration_noise > 0.0 && acceleration_noise <= 1e9) {
+        return Err(("model_acceleration_noise", "must be in (0, 1e9]".into()));
+    }
+    if !(relative_error.is_finite() && (0.0..=10.0).contains(&relative_error)) {
+        return Err(("model_relative_error", "must be in [0, 10]".into()));
+    }
+    Ok(())
 }
 
 /// The arm's dynamics as a prediction model (a copy of the URDF's model, possibly with its

@@ -652,7 +652,10 @@ impl Scenario {
         {
             return Err(bad(
                 "hybrid.prior",
-                "the propagated prior needs controller.update = \"gauss-newton\"".into(),
+                format!(
+                    "\"{}\" uses the propagated prior, which needs controller.update = \"gauss-newton\"",
+                    self.hybrid.prior.name()
+                ),
             ));
         }
         if self.faults.len() > MAX_FAULTS {

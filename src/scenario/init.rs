@@ -12,12 +12,14 @@
 //!   where the joint's own damping would make the loop slower than w / 2, the third so that
 //!   gravity alone bends the joint at most 0.05 rad before the integral acts),
 //!   kd_i = max(0, 2 zeta sqrt(kp_i m_i) - D_i) (damping ratio zeta with the plant's damping
-//!   counted), ki_i = kp_i w / 8 (integral time 8 / w), w = 8 rad/s and zeta = 0.9 (w dt << 1, so
-//!   the discrete loop is far from its stability limit at any dt <= 10 ms); w lowered, and kp
-//!   capped, where a 0.5 rad error would ask for more than the joint's effort limit. (Until
-//!   2026-12-02 m_i was the diagonal M_ii and gravity was left to the integral: a Kinova Jaco2's
-//!   wrist got kp 0.05-2 N m/rad and swung 0.8-2.6 rad off its targets; `panda_healthy.toml` was
-//!   written by that rule.)
+//!   counted), ki_i = kp_i w / 8 (integral time 8 / w), w = 8 rad/s and zeta = 0.9; w lowered,
+//!   and kp capped, where a 0.5 rad error would ask for more than the joint's effort limit. A
+//!   joint whose row sum or gravity floor sets kp answers faster than w on its own inertia (by
+//!   about sqrt(m_i / M_ii)): the Jaco2's fastest mode of M^-1 Kp is 139 rad/s, 0.14 per tick at
+//!   the scenario's dt = 1 ms, far from the discrete loop's limit; a much longer dt may not be.
+//!   (Until 2026-12-02 m_i was the diagonal M_ii and gravity was left to the integral: a Kinova
+//!   Jaco2's wrist got kp 0.05-2 N m/rad and ended 0.42 rad off its target, no-FT, articulated
+//!   engine, 15 s; `panda_healthy.toml` was written by that rule.)
 //! - Integral limit: 1.5 x the largest gravity torque seen (at least 1 N m), capped at the effort.
 //! - Camera: a pinhole looking along the axis in which the end effector moves least over the
 //!   training box (the smallest principal axis of 200 sampled positions), from 3 x the extent of
