@@ -242,35 +242,25 @@ fn errors_name_the_key_and_the_set_that_gave_it() {
         d,
         "o",
     );
-    // The hybrid's propagated prior needs the Gauss-Newton update, like the controller's.
-    refused(
-        &[
-            "run",
-            "--set",
-            "hybrid.prior=\"propagated\"",
-            "--set",
-            "controller.update=\"gradient\"",
-            "--out",
+    // The hybrid's propagated prior (throughout, or once a tachometer fails) needs the
+    // Gauss-Newton update, like the controller's; the refusal names the prior given.
+    for prior in ["propagated", "fixed-until-tachometer-fails"] {
+        let set = format!("hybrid.prior=\"{prior}\"");
+        refused(
+            &[
+                "run",
+                "--set",
+                &set,
+                "--set",
+                "controller.update=\"gradient\"",
+                "--out",
+                "o",
+            ],
+            &["hybrid.prior", prior, "gauss-newton"],
+            d,
             "o",
-        ],
-        &["hybrid.prior", "gauss-newton"],
-        d,
-        "o",
-    );
-    refused(
-        &[
-            "run",
-            "--set",
-            "hybrid.prior=\"fixed-until-tachometer-fails\"",
-            "--set",
-            "controller.update=\"gradient\"",
-            "--out",
-            "o",
-        ],
-        &["hybrid.prior", "gauss-newton"],
-        d,
-        "o",
-    );
+        );
+    }
     // The Kalman baselines' process model: a typed choice, and the model's settings bounded.
     refused(
         &["run", "--set", "kalman.process_model=\"rk4\"", "--out", "o"],
