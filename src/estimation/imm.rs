@@ -100,6 +100,36 @@ impl Imm {
         }
     }
 
+    /// Predicts every hypothesis one tick: with the arm model, one model acceleration and
+    /// process noise at the combined belief (the manoeuvre hypothesis' noise scaled by its
+    /// multiple); without one, or where the model is singular, at constant velocity.
+    fn predict_bank(&mut self, torques: &[f64]) {
+        match self
+            .model
+            .as_mut()
+            .and_then(|m| m.at(self.x.as_slice(), torques))
+        {
+            Some((acc, noise)) => {
+                for (j, f) in self.filters.iter_mut().enumerate() {
+                    match self.manoeuvre {
+                        Some((k, scale)) if k == j => {
+                            for (s, v) in self.manoeuvre_noise.iter_mut().zip(noise) {
+                                *s = scale * v;
+                            }
+                            f.predict_with_noise(Some(acc), Some(&self.manoeuvre_noise));
+                        }
+                        _ => f.predict_with_noise(Some(acc), Some(noise)),
+                    }
+                }
+            }
+            None => {
+                for f in &mut self.filters {
+                    f.predict(None);
+                }
+            }
+        }
+    }
+
     /// Each hypothesis' probability: H_0 first, then one per channel.
     pub fn probabilities(&self) -> &[f64] {
         &self.probability
@@ -186,32 +216,7 @@ impl Estimator for Imm {
             for p in &mut self.probability {
                 *p = stay * *p + leave * (total - *p);
             }
-            // One model acceleration and process noise per tick, at the combined belief (the
-            // manoeuvre hypothesis' noise scaled by its multiple).
-            match self
-                .model
-                .as_mut()
-                .and_then(|m| m.at(self.x.as_slice(), input.applied_torques))
-            {
-                Some((acc, noise)) => {
-                    for (j, f) in self.filters.iter_mut().enumerate() {
-                        match self.manoeuvre {
-                            Some((k, scale)) if k == j => {
-                                for (s, v) in self.manoeuvre_noise.iter_mut().zip(noise) {
-                                    *s = scale * v;
-                                }
-                                f.predict_with_noise(Some(acc), Some(&self.manoeuvre_noise));
-                            }
-                            _ => f.predict_with_noise(Some(acc), Some(noise)),
-                        }
-                    }
-                }
-                None => {
-                    for f in &mut self.filters {
-                        f.predict(None);
-                    }
-                }
-            }
+            self.predict_bank(input.applied_torques);
         }
         linearise_bank(&mut self.filters, None);
         for (j, f) in self.filters.iter_mut().enumerate() {
@@ -280,5 +285,64 @@ impl Estimator for Imm {
     }
     fn covariance(&self) -> Option<&DMatrix<f64>> {
         Some(&self.p)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::estimation::kalman::ProcessModel;
+    use crate::sensors::{CameraModel, ChannelLayout};
+    use std::sync::Arc;
+
+    /// With the arm model every hypothesis predicts with the model's acceleration at the
+    /// combined belief, and the manoeuvre hypothesis' process noise is the model's times
+    /// `imm_manoeuvre`: from equal states, its velocity variance grows by imm_manoeuvre^2 times
+    /// the others' growth, s^2 dt^2 with s = max(2, 0.1 |qdd|) (docs/method.md, "Classical
+    /// baselines").
+    #[test]
+    fn the_bank_predicts_with_the_arm_model_and_scales_the_manoeuvre_noise() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("urdf/planar_2dof.urdf");
+        let model = crate::plant::load_urdf(&path).unwrap();
+        let g = [0.0, 0.0, -9.81];
+        let config = KalmanConfig {
+            process_model: ProcessModel::Dynamics,
+            ..KalmanConfig::default()
+        };
+        let layout = ChannelLayout::new(2, CameraModel::Pinhole);
+        let dt = 1e-3;
+        let template = Ekf::new(layout, Arc::new(crate::gp::GpModel::toy()), dt, 200.0);
+        let nominal = vec![1e6; layout.len()];
+        let prediction = ModelPrediction::from_config(&config, &model, g);
+        let mut imm = Imm::new(template, &config, prediction, &nominal);
+        let x = [0.3, -0.7, 0.5, -1.0];
+        let u = [40.0, -3.0];
+        imm.x.copy_from_slice(&x);
+        for f in &mut imm.filters {
+            f.x.copy_from_slice(&x);
+            f.p.fill_with_identity();
+        }
+        imm.predict_bank(&u);
+        let mut direct = crate::estimation::kalman::ArmDynamics::new(&model, g, 1.0);
+        let acc = direct.acceleration(&x[..2], &x[2..], &u).unwrap().to_vec();
+        let (k, scale) = imm.manoeuvre.expect("a manoeuvre hypothesis by default");
+        assert_eq!(k, imm.filters.len() - 1);
+        for (j, f) in imm.filters.iter().enumerate() {
+            for i in 0..2 {
+                let v = x[2 + i] + dt * acc[i];
+                assert!(
+                    (f.x[2 + i] - v).abs() < 1e-15,
+                    "hypothesis {j}: {} {v}",
+                    f.x[2 + i]
+                );
+                let s = f64::max(2.0, 0.1 * acc[i].abs()) * if j == k { scale } else { 1.0 };
+                let growth = f.p[(2 + i, 2 + i)] - 1.0;
+                let want = s * s * dt * dt;
+                assert!(
+                    (growth - want).abs() < 1e-9 * want.max(1e-12),
+                    "hypothesis {j}, joint {i}: {growth} against {want}"
+                );
+            }
+        }
     }
 }
