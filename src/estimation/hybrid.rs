@@ -46,7 +46,7 @@ use std::sync::Arc;
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
-use super::kalman::{ArmDynamics, Ekf, linearise_bank};
+use super::kalman::{Ekf, ModelPrediction, linearise_bank};
 use super::uaic::{PriorMode, Uaic};
 use super::{Estimate, Estimator, EstimatorInput};
 use crate::gp::GpModel;
@@ -261,7 +261,7 @@ pub struct Hybrid {
     /// The most probable hypothesis, and since when (the resync clock).
     winner: usize,
     winner_since: u64,
-    model: Option<ArmDynamics>,
+    model: Option<ModelPrediction>,
     config: HybridConfig,
     nominal: Vec<f64>,
     precisions: Vec<f64>,
@@ -269,14 +269,11 @@ pub struct Hybrid {
     floor: f64,
     initialised: bool,
     ticks: u64,
-    // Scratch: the model acceleration, the per-joint process noise, each hypothesis' log
-    // evidence.
+    // Scratch: each hypothesis' log evidence.
     ll: Vec<f64>,
-    acc: Vec<f64>,
     // Scratch of a rebase or restart: the slots that keep their states, the new probabilities.
     kept: Vec<bool>,
     scratch_p: Vec<f64>,
-    noise: Vec<f64>,
     /// The last tick's readings (the stuck component's prediction).
     last: Vec<Option<f64>>,
     // Scratch of the re-anchoring test: belief minus estimate, its solve, the factor.
@@ -290,7 +287,7 @@ impl Hybrid {
     pub fn new(
         uaic: Uaic,
         ekf: Ekf,
-        model: Option<ArmDynamics>,
+        model: Option<ModelPrediction>,
         config: HybridConfig,
         nominal: &[f64],
         floor: f64,
@@ -344,8 +341,6 @@ impl Hybrid {
             ll: vec![0.0; h],
             kept: vec![false; h],
             scratch_p: vec![0.0; h],
-            acc: vec![0.0; layout.n_joints()],
-            noise: vec![0.0; layout.n_joints()],
             last: vec![None; layout.len()],
             gap: DVector::zeros(dim),
             solved: DVector::zeros(dim),
@@ -678,28 +673,18 @@ impl Hybrid {
             // first `resync_ticks` the belief's instead: every hypothesis starts from one
             // reading, and a failure hypothesis that leads for a tick would otherwise make the
             // model predict from its own estimate and stay ahead (start-up false alarms).
-            let n = self.layout.n_joints();
             let x = if self.ticks < self.config.resync_ticks {
                 self.uaic.belief()
             } else {
                 self.bank[self.winner].x.as_slice()
             };
-            let has_acc = self
+            let (acc, noise) = match self
                 .model
                 .as_mut()
-                .and_then(|m| m.acceleration(&x[..n], &x[n..], input.applied_torques))
-                .map(|a| self.acc.copy_from_slice(a))
-                .is_some();
-            let (acc, noise) = if has_acc {
-                for (s, a) in self.noise.iter_mut().zip(&self.acc) {
-                    *s = self
-                        .config
-                        .model_acceleration_noise
-                        .max(self.config.model_relative_error * a.abs());
-                }
-                (Some(self.acc.as_slice()), Some(self.noise.as_slice()))
-            } else {
-                (None, None)
+                .and_then(|m| m.at(x, input.applied_torques))
+            {
+                Some((acc, noise)) => (Some(acc), Some(noise)),
+                None => (None, None),
             };
             for (f, _) in self.bank.iter_mut().zip(&self.active).filter(|(_, a)| **a) {
                 f.predict_with_noise(acc, noise);
@@ -759,15 +744,15 @@ impl Estimator for Hybrid {
         // hypothesis; while it is the propagated prior, a channel's precision is nominal x
         // P(healthy) without the floor: the propagated prior's velocity belief is loose enough
         // that a frozen tachometer at the floor precision would bias mu'.
+        let winner = (0..self.bank.len())
+            .max_by(|&a, &b| self.probability[a].total_cmp(&self.probability[b]))
+            .unwrap_or(0);
         let mut floor = self.floor;
         if self.config.prior == HybridPrior::FixedUntilTachometerFails {
-            let winner = (0..self.bank.len())
-                .max_by(|&a, &b| self.probability[a].total_cmp(&self.probability[b]))
-                .unwrap_or(0);
-            let tachometer_failed = (0..self.layout.len()).any(|c| {
-                matches!(self.layout.channel(c), Channel::Tachometer(_))
-                    && self.holds_failed(winner, c)
-            });
+            let tachometer_failed = self
+                .layout
+                .group_range(crate::sensors::SensorGroup::Tachometers)
+                .any(|c| self.holds_failed(winner, c));
             if tachometer_failed {
                 self.uaic.set_prior(PriorMode::Propagated);
                 floor = 0.0;
@@ -797,9 +782,6 @@ impl Estimator for Hybrid {
         // (if it drops a channel the last winner trusted and the belief lies outside its
         // 3-sigma ellipsoid); once it has stayed the most probable for `resync_ticks`, the bank
         // is rebased on it.
-        let winner = (0..self.bank.len())
-            .max_by(|&a, &b| self.probability[a].total_cmp(&self.probability[b]))
-            .unwrap_or(0);
         let tick = self.ticks;
         let period = self.config.resync_ticks;
         let due = period > 0
@@ -855,7 +837,13 @@ pub fn build(
     let (dynamics, noise) = match config.bank_model {
         BankModel::ConstantVelocity => (None, acceleration_bound),
         BankModel::Dynamics => (
-            Some(ArmDynamics::new(model, gravity, config.mass_scale)),
+            Some(ModelPrediction::new(
+                model,
+                gravity,
+                config.mass_scale,
+                config.model_acceleration_noise,
+                config.model_relative_error,
+            )),
             config.model_acceleration_noise,
         ),
     };

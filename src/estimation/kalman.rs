@@ -210,9 +210,9 @@ impl ArmDynamics {
     }
 }
 
-/// The classical filters' model-based prediction (`kalman.process_model = "dynamics"`): the
-/// arm's acceleration under the applied torques and each joint's process noise
-/// max(floor, relative x |qdd|), as the hybrid's bank predicts (docs/method.md, "Classical
+/// A model-based prediction: the arm's acceleration under the applied torques and each joint's
+/// process noise max(floor, relative x |qdd|). The hybrid's bank predicts with it, and the
+/// classical filters with `kalman.process_model = "dynamics"` (docs/method.md, "Classical
 /// baselines").
 pub struct ModelPrediction {
     dynamics: ArmDynamics,
@@ -222,16 +222,34 @@ pub struct ModelPrediction {
 }
 
 impl ModelPrediction {
+    /// The dynamics of `model` (masses scaled by `mass_scale`) with process noise
+    /// max(`floor`, `relative` x |qdd|) per joint.
+    pub fn new(
+        model: &ArmModel,
+        gravity: [f64; 3],
+        mass_scale: f64,
+        floor: f64,
+        relative: f64,
+    ) -> Self {
+        Self {
+            dynamics: ArmDynamics::new(model, gravity, mass_scale),
+            floor,
+            relative,
+            noise: vec![0.0; model.joints.len()],
+        }
+    }
+
     /// The prediction `config` asks for on `model`, or None for constant velocity.
     pub fn from_config(config: &KalmanConfig, model: &ArmModel, gravity: [f64; 3]) -> Option<Self> {
         match config.process_model {
             ProcessModel::ConstantVelocity => None,
-            ProcessModel::Dynamics => Some(Self {
-                dynamics: ArmDynamics::new(model, gravity, config.mass_scale),
-                floor: config.model_acceleration_noise,
-                relative: config.model_relative_error,
-                noise: vec![0.0; model.joints.len()],
-            }),
+            ProcessModel::Dynamics => Some(Self::new(
+                model,
+                gravity,
+                config.mass_scale,
+                config.model_acceleration_noise,
+                config.model_relative_error,
+            )),
         }
     }
 
