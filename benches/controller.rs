@@ -7,14 +7,15 @@ use aift::control::{Control, ControlConfig};
 use aift::estimation::uaic::{Uaic, UaicConfig};
 use aift::estimation::{Estimate, Estimator};
 use aift::gp::{FitOptions, derive_box, sample_training_set};
-use aift::plant::{Arm, ArmOptions};
 use aift::precision::{Gradient, PrecisionBounds, PrecisionInput, PrecisionMethod};
 use aift::sensors::{Camera, CameraConfig, CameraModel, ChannelLayout, Readings};
 use criterion::{Criterion, criterion_group, criterion_main};
 
 fn controller_tick(c: &mut Criterion) {
     let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("urdf/planar_2dof.urdf");
-    let mut arm = Arm::from_urdf(&path, ArmOptions::default()).expect("paper arm");
+    let model = std::sync::Arc::new(aift::arm::load_urdf(&path).expect("paper arm"));
+    let ee = aift::arm::EndEffector::new(&model, "ee", [0.0; 3]).expect("an ee link");
+    let mut arm = aift::arm::Kinematics::new(model);
     let camera = Camera::new(CameraConfig::default());
     let bounds = derive_box(
         &[
@@ -24,11 +25,15 @@ fn controller_tick(c: &mut Criterion) {
         ],
         0.3,
     );
-    let (gp, _) = sample_training_set(&mut arm, &camera, &bounds, 200, 1)
+    let (gp, _) = sample_training_set(&mut arm, &ee, &camera, &bounds, 200, 1)
         .fit(&FitOptions::default())
         .expect("fit");
     let layout = ChannelLayout::new(2, CameraModel::Pinhole);
-    let mut belief = Uaic::new(UaicConfig::default(), layout, Arc::new(gp), 1e-3);
+    let mut belief = Uaic::new(
+        UaicConfig::default(),
+        aift::estimation::models::GpCamera::shared(layout, Arc::new(gp)),
+        1e-3,
+    );
     let mut control = Control::new(&ControlConfig::default());
     let readings = Readings {
         values: vec![

@@ -3,13 +3,14 @@
 use std::path::PathBuf;
 
 use aift::gp::{FitOptions, derive_box, sample_training_set};
-use aift::plant::{Arm, ArmOptions};
 use aift::sensors::{Camera, CameraConfig};
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 
 fn gp_predict(c: &mut Criterion) {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("urdf/planar_2dof.urdf");
-    let mut arm = Arm::from_urdf(&path, ArmOptions::default()).expect("paper arm");
+    let model = std::sync::Arc::new(aift::arm::load_urdf(&path).expect("paper arm"));
+    let ee = aift::arm::EndEffector::new(&model, "ee", [0.0; 3]).expect("an ee link");
+    let mut arm = aift::arm::Kinematics::new(model);
     let camera = Camera::new(CameraConfig::default());
     let bounds = derive_box(
         &[
@@ -21,7 +22,7 @@ fn gp_predict(c: &mut Criterion) {
     );
     let mut group = c.benchmark_group("gp_predict_2dof");
     for n in [100, 200, 400] {
-        let (model, _) = sample_training_set(&mut arm, &camera, &bounds, n, 1)
+        let (model, _) = sample_training_set(&mut arm, &ee, &camera, &bounds, n, 1)
             .fit(&FitOptions::default())
             .expect("fit");
         let q = [-0.6, 0.2];

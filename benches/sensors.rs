@@ -2,7 +2,6 @@
 
 use std::path::PathBuf;
 
-use aift::plant::{Arm, ArmOptions};
 use aift::sensors::{
     Camera, CameraConfig, CameraModel, ChannelLayout, Readings, SensorConfig, SensorSuite,
 };
@@ -10,13 +9,17 @@ use criterion::{Criterion, criterion_group, criterion_main};
 
 fn sensing(c: &mut Criterion) {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("urdf/planar_2dof.urdf");
-    let mut arm = Arm::from_urdf(&path, ArmOptions::default()).expect("paper arm");
+    let model = std::sync::Arc::new(aift::arm::load_urdf(&path).expect("paper arm"));
+    let ee = aift::arm::EndEffector::new(&model, "ee", [0.0; 3]).expect("an ee link");
+    let mut arm = aift::plant::build(model, [0.0, 0.0, -9.81], &Default::default())
+        .expect("the plant builds");
     arm.set_state(&[-0.6, 0.2], &[0.1, 0.0]);
     let layout = ChannelLayout::new(2, CameraModel::Pinhole);
     let mut suite = SensorSuite::new(
         layout,
         &SensorConfig::default(),
         Camera::new(CameraConfig::default()),
+        ee,
         &[],
         1e-3,
         1,
@@ -25,7 +28,7 @@ fn sensing(c: &mut Criterion) {
     let mut tick = 0u64;
     c.bench_function("sense_all_channels_2dof", |b| {
         b.iter(|| {
-            suite.read(&arm, tick, &mut readings);
+            suite.read(arm.as_ref(), tick, &mut readings);
             tick += 1;
         })
     });

@@ -7,7 +7,6 @@
 use std::time::Instant;
 
 use aift::gp::{FitOptions, derive_box, evaluate_held_out, sample_training_set};
-use aift::plant::{Arm, ArmOptions};
 use aift::sensors::{Camera, CameraConfig};
 
 fn main() {
@@ -35,11 +34,14 @@ fn main() {
     );
     println!("|---|---|---|---|---|---|");
     for (file, points) in cases {
-        let mut arm = Arm::from_urdf(&root.join(file), ArmOptions::default()).unwrap();
+        let model = std::sync::Arc::new(aift::arm::load_urdf(&root.join(file)).unwrap());
+        let ee = aift::arm::EndEffector::new(&model, "ee", [0.0; 3]).unwrap();
+        let n_joints = model.joints.len();
+        let mut arm = aift::arm::Kinematics::new(model);
         let camera = Camera::new(CameraConfig::default());
         let bounds = derive_box(&points, 0.3);
         for count in [100, 200, 400] {
-            let set = sample_training_set(&mut arm, &camera, &bounds, count, 1);
+            let set = sample_training_set(&mut arm, &ee, &camera, &bounds, count, 1);
             let t = Instant::now();
             let (model, report) = set.fit(&FitOptions::default()).unwrap();
             eprintln!(
@@ -47,7 +49,7 @@ fn main() {
                 report.evaluations, report.per_start, model.hyperparameters
             );
             let fit_s = t.elapsed().as_secs_f64();
-            let err = evaluate_held_out(&model, &mut arm, &camera, 2000, 2);
+            let err = evaluate_held_out(&model, &mut arm, &ee, &camera, 2000, 2);
             let q: Vec<f64> = bounds.iter().map(|[lo, hi]| 0.5 * (lo + hi)).collect();
             let (mut g, mut jac) = ([0.0; 2], vec![0.0; 2 * q.len()]);
             let reps = 20_000;
@@ -58,7 +60,7 @@ fn main() {
             let us = t.elapsed().as_secs_f64() * 1e6 / reps as f64;
             println!(
                 "| {} | {count} | {:.2} | {:.2} | {fit_s:.2} | {us:.2} |",
-                arm.n_joints(),
+                n_joints,
                 err.rms * 1e3,
                 err.max * 1e3
             );

@@ -1,5 +1,5 @@
 //! Steps the paper arm for a while: a target for profilers (`perf record`, callgrind).
-use aift::plant::{Arm, ArmOptions};
+use aift::plant::PlantSettings;
 
 fn main() {
     let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("urdf/planar_2dof.urdf");
@@ -7,14 +7,10 @@ fn main() {
         .nth(2)
         .and_then(|s| s.parse().ok())
         .unwrap_or(4);
-    let mut arm = Arm::from_urdf(
-        &path,
-        ArmOptions {
-            solver_iterations: iterations,
-            ..ArmOptions::default()
-        },
-    )
-    .expect("paper arm");
+    let mut settings = PlantSettings::default();
+    settings.rapier.solver_iterations = iterations;
+    let model = std::sync::Arc::new(aift::arm::load_urdf(&path).expect("paper arm"));
+    let mut arm = aift::plant::build(model, [0.0, 0.0, -9.81], &settings).expect("rapier plant");
     arm.set_state(&[-1.2, 0.8], &[0.5, -0.3]);
     arm.set_torques(&[20.0, 5.0]);
     let n: usize = std::env::args()

@@ -10,23 +10,26 @@
 
 use std::time::Instant;
 
-use aift::plant::{Arm, ArmOptions, Engine, Integrator};
+use aift::plant::{Engine, Integrator, Plant, PlantSettings};
 
-fn arm(file: &str, engine: Engine, integrator: Integrator, iterations: usize) -> Arm {
+fn arm(file: &str, engine: Engine, integrator: Integrator, iterations: usize) -> Box<dyn Plant> {
     let root = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"));
-    Arm::from_urdf(
-        &root.join(file),
-        ArmOptions {
-            solver_iterations: iterations,
-            engine,
-            integrator,
-            ..ArmOptions::default()
-        },
-    )
-    .expect("arm")
+    let model = std::sync::Arc::new(aift::arm::load_urdf(&root.join(file)).expect("arm"));
+    let mut settings = PlantSettings {
+        engine,
+        ..PlantSettings::default()
+    };
+    match engine {
+        Engine::Rapier => settings.rapier.solver_iterations = iterations,
+        Engine::Articulated => {
+            settings.articulated.substeps = iterations;
+            settings.articulated.integrator = integrator;
+        }
+    }
+    aift::plant::build(model, [0.0, 0.0, -9.81], &settings).expect("plant")
 }
 
-fn swing(arm: &mut Arm, q0: &[f64], tau: &[f64], duration: f64) -> (Vec<f64>, f64) {
+fn swing(arm: &mut dyn Plant, q0: &[f64], tau: &[f64], duration: f64) -> (Vec<f64>, f64) {
     let dt = 1e-3;
     let steps = (duration / dt).round() as usize;
     let mut best = f64::INFINITY;
@@ -66,7 +69,9 @@ fn main() {
         let n = q0.len();
         let mut reference = arm(file, Engine::Articulated, Integrator::Rk4, 64);
         let tau = if n == 7 {
-            let (_, g) = reference.probe_dynamics(&q0, 1e-3);
+            let (_, g) =
+                aift::arm::Dynamics::new(reference.model().clone().into(), [0.0, 0.0, -9.81])
+                    .mass_matrix_and_gravity(&q0);
             let push = [2.0, 3.0, -1.0, 2.0, 0.05, -0.05, 0.005];
             g.iter().zip(push).map(|(g, p)| g + p).collect()
         } else {
@@ -77,7 +82,7 @@ fn main() {
         } else {
             "free swing, 2 s"
         };
-        let (q_ref, _) = swing(&mut reference, &q0, &tau, duration);
+        let (q_ref, _) = swing(reference.as_mut(), &q0, &tau, duration);
         let mut settings = vec![];
         for it in [1, 2, 4, 8, 16] {
             settings.push((Engine::Rapier, Integrator::Euler, it));
@@ -88,7 +93,7 @@ fn main() {
         settings.push((Engine::Articulated, Integrator::Rk4, 1));
         for (engine, integrator, it) in settings {
             let mut a = arm(file, engine, integrator, it);
-            let (q, us) = swing(&mut a, &q0, &tau, duration);
+            let (q, us) = swing(a.as_mut(), &q0, &tau, duration);
             let err = q
                 .iter()
                 .zip(&q_ref)

@@ -10,21 +10,26 @@ use aift::control::{Control, ControlConfig};
 use aift::estimation::Estimator;
 use aift::estimation::uaic::{Uaic, UaicConfig};
 use aift::gp::{FitOptions, derive_box, sample_training_set};
-use aift::plant::{Arm, ArmOptions};
 use aift::sensors::{Camera, CameraConfig, CameraModel, ChannelLayout, Readings};
 
 fn main() -> anyhow::Result<()> {
     // A camera model for the paper arm (the GP needs some source of camera data).
     let urdf = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("urdf/planar_2dof.urdf");
-    let mut arm = Arm::from_urdf(&urdf, ArmOptions::default())?;
+    let model = Arc::new(aift::arm::load_urdf(&urdf)?);
+    let ee = aift::arm::EndEffector::new(&model, "ee", [0.0; 3])?;
+    let mut arm = aift::arm::Kinematics::new(model);
     let camera = Camera::new(CameraConfig::default());
     let bounds = derive_box(&[vec![-1.57, 0.0], vec![-0.2, 0.5]], 0.3);
     let (gp, _) =
-        sample_training_set(&mut arm, &camera, &bounds, 150, 1).fit(&FitOptions::default())?;
+        sample_training_set(&mut arm, &ee, &camera, &bounds, 150, 1).fit(&FitOptions::default())?;
 
     let layout = ChannelLayout::new(2, CameraModel::Pinhole);
     let dt = 1e-3;
-    let mut belief = Uaic::new(UaicConfig::default(), layout, Arc::new(gp), dt);
+    let mut belief = Uaic::new(
+        UaicConfig::default(),
+        aift::estimation::models::GpCamera::shared(layout, Arc::new(gp)),
+        dt,
+    );
     let mut control = Control::new(&ControlConfig::default());
     let precisions = [1e6, 1e6, 1e6, 1e6, 1e4, 1e4];
     // A toy plant: two decoupled, heavily damped joints with gravity-like offsets.

@@ -94,7 +94,7 @@ fn counted_ticks(setup: &aift::scenario::RunSetup, method: Method) -> (f64, Vec<
 fn the_closed_loop_allocates_nothing_per_tick() {
     let mut failures = Vec::new();
     for file in ["paper_encoder_freeze.toml", "panda_healthy.toml"] {
-        let articulated = ["gp.points=100", "robot.engine=\"articulated\""];
+        let articulated = ["gp.points=100", "plant.engine=\"articulated\""];
         for method in Method::ALL {
             let a = allocations_per_tick(file, &articulated, method);
             eprintln!(
@@ -121,8 +121,8 @@ fn the_closed_loop_allocates_nothing_per_tick() {
         // The articulated engine's RK4 keeps its stages between steps too.
         let rk4 = [
             "gp.points=100",
-            "robot.engine=\"articulated\"",
-            "robot.integrator=\"rk4\"",
+            "plant.engine=\"articulated\"",
+            "plant.articulated.integrator=\"rk4\"",
         ];
         let a = allocations_per_tick(file, &rk4, Method::NoFt);
         eprintln!("{file} articulated rk4 no-ft: {a} allocations per tick");
@@ -151,7 +151,7 @@ fn the_closed_loop_allocates_nothing_while_faults_come_and_go() {
         let setup = common::with_faults(
             file,
             &faults,
-            &["gp.points=100", "robot.engine=\"articulated\""],
+            &["gp.points=100", "plant.engine=\"articulated\""],
         );
         for method in Method::ALL {
             let (a, lowest, alarms) = counted_ticks(&setup, method);

@@ -163,7 +163,7 @@ fn init_gains_hold_a_light_wristed_arm_from_outside_the_project() {
         text.contains("ee_link = \"j2s6s200_end_effector\""),
         "{text}"
     );
-    let loaded = LoadedScenario::from_file(&out, &["robot.engine=\"articulated\"".into()]).unwrap();
+    let loaded = LoadedScenario::from_file(&out, &["plant.engine=\"articulated\"".into()]).unwrap();
     let setup = RunSetup::prepare(loaded).unwrap();
     let (r, _) = common::run_recorded(&setup, Method::NoFt, 1, None);
     eprintln!("jaco2 no-ft: final error {:?}", r.final_error_per_joint);

@@ -17,7 +17,7 @@ fn small_campaign(dir: &Path) -> std::path::PathBuf {
 name = "small"
 seeds = 2
 methods = ["no-ft", "pl-always", "deterministic", "oracle"]
-set = ["robot.engine=\"articulated\"", "duration=10.0", "detector.calibration_runs=8"]
+set = ["plant.engine=\"articulated\"", "duration=10.0", "detector.calibration_runs=8"]
 channels = ["enc*", "tach*"]
 
 [[arms]]

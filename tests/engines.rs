@@ -1,6 +1,7 @@
-//! Two engines, checked against each other and against the closed-form oracle: rapier's
-//! multibody and aift's own articulated-body dynamics. The articulated engine's mass matrix and
-//! gravity equal those measured from rapier on the 7-DOF arm; with the Euler integrator it takes
+//! Two plants behind one trait, checked against each other and against the closed-form oracle:
+//! rapier's multibody and aift's own articulated-body dynamics. The model's mass matrix and
+//! gravity (what the articulated plant integrates, the estimators predict with and `aift init`
+//! reads) equal those measured from rapier on the 7-DOF arm; with the Euler integrator it takes
 //! rapier's step; with RK4 it follows the oracle to 1e-9; and on the undamped and 7-DOF arms both
 //! engines converge to the same trajectory as their substeps shrink. The accuracy and cost per
 //! setting behind the README's table come from here (`--nocapture`).
@@ -9,24 +10,49 @@ mod common;
 
 use std::time::Instant;
 
-use aift::plant::{Arm, ArmOptions, Engine, Integrator};
-use common::{PaperArm, repo};
+use aift::arm::Dynamics;
+use aift::plant::{Engine, Integrator, Plant};
+use common::{PaperArm, plant_of as arm};
 
-fn arm(file: &str, engine: Engine, integrator: Integrator, iterations: usize) -> Arm {
-    Arm::from_urdf(
-        &repo(file),
-        ArmOptions {
-            solver_iterations: iterations,
-            engine,
-            integrator,
-            ..ArmOptions::default()
-        },
-    )
-    .expect("the arm loads")
+/// The joint-space mass matrix M(q) and gravity torque G(q) at rest at `q`, measured from a
+/// plant by stepping it: one step from rest gives qd = dt (M + dt D)^-1 (tau - G) (tested in
+/// `tests/plant_dynamics.rs`), so n + 1 probing steps with small torques recover M and G (what
+/// `aift init` did before it read them from the model).
+fn probe_dynamics(arm: &mut dyn Plant, q: &[f64], dt: f64) -> (nalgebra::DMatrix<f64>, Vec<f64>) {
+    let n = arm.n_joints();
+    let zeros = vec![0.0; n];
+    let damping: Vec<f64> = arm.model().joints.iter().map(|j| j.damping).collect();
+    let mut response = |tau: &[f64]| {
+        arm.set_state(q, &zeros);
+        arm.set_torques(tau);
+        arm.step(dt);
+        arm.state().1
+    };
+    let free = response(&zeros);
+    let eps = 1e-3;
+    let mut inverse = nalgebra::DMatrix::zeros(n, n);
+    for i in 0..n {
+        let mut tau = zeros.clone();
+        tau[i] = eps;
+        let qd = response(&tau);
+        for r in 0..n {
+            inverse[(r, i)] = (qd[r] - free[r]) / (dt * eps);
+        }
+    }
+    let mut md = inverse.try_inverse().expect("invertible");
+    md = (&md + md.transpose()) * 0.5;
+    let g: Vec<f64> = (-(&md * nalgebra::DVector::from_column_slice(&free)) / dt)
+        .iter()
+        .copied()
+        .collect();
+    for (i, d) in damping.iter().enumerate() {
+        md[(i, i)] -= dt * d;
+    }
+    (md, g)
 }
 
 /// Runs from (q0, 0) with constant torques; returns q at the end and the wall time per tick (us).
-fn swing(arm: &mut Arm, q0: &[f64], tau: &[f64], duration: f64) -> (Vec<f64>, f64) {
+fn swing(arm: &mut dyn Plant, q0: &[f64], tau: &[f64], duration: f64) -> (Vec<f64>, f64) {
     let dt = 1e-3;
     arm.set_state(q0, &vec![0.0; q0.len()]);
     arm.set_torques(tau);
@@ -47,7 +73,7 @@ fn max_diff(a: &[f64], b: &[f64]) -> f64 {
 }
 
 #[test]
-fn articulated_dynamics_equal_what_rapier_measures_on_the_7_dof_arm() {
+fn the_models_dynamics_equal_what_both_plants_measure_on_the_7_dof_arm() {
     // One substep: the probe's step from rest is then exactly qd = dt (M + dt D)^-1 (tau - G).
     let mut rapier = arm("urdf/panda_7dof.urdf", Engine::Rapier, Integrator::Euler, 1);
     let mut art = arm(
@@ -56,19 +82,45 @@ fn articulated_dynamics_equal_what_rapier_measures_on_the_7_dof_arm() {
         Integrator::Euler,
         1,
     );
+    let mut model = Dynamics::new(common::model("urdf/panda_7dof.urdf"), [0.0, 0.0, -9.81]);
     for q in [
         [0.0, -0.78, 0.0, -2.36, 0.0, 1.57, 0.78],
         [0.4, 0.3, -0.5, -1.2, 0.7, 2.1, -1.0],
     ] {
-        let (m_r, g_r) = rapier.probe_dynamics(&q, 1e-3);
-        let (m_a, g_a) = art.probe_dynamics(&q, 1e-3);
-        let scale = m_r.amax();
-        let dm = (&m_r - &m_a).amax() / scale;
-        let dg = max_diff(&g_r, &g_a) / g_r.iter().fold(0.0f64, |a, b| a.max(b.abs()));
-        eprintln!(
-            "7-DOF at {q:?}: mass matrix differs by {dm:.2e}, gravity by {dg:.2e} (relative)"
-        );
-        assert!(dm < 1e-9 && dg < 1e-9, "{m_r} {m_a} {g_r:?} {g_a:?}");
+        let (m, g) = model.mass_matrix_and_gravity(&q);
+        for (name, plant) in [("rapier", &mut rapier), ("articulated", &mut art)] {
+            let (m_p, g_p) = probe_dynamics(plant.as_mut(), &q, 1e-3);
+            let dm = (&m_p - &m).amax() / m.amax();
+            let dg = max_diff(&g_p, &g) / g.iter().fold(0.0f64, |a, b| a.max(b.abs()));
+            eprintln!(
+                "7-DOF at {q:?}: {name}'s probe and the model differ by {dm:.2e} (mass matrix), \
+                 {dg:.2e} (gravity), relative"
+            );
+            assert!(dm < 1e-7 && dg < 1e-7, "{name}: {m_p} {m} {g_p:?} {g:?}");
+        }
+    }
+}
+
+/// Both plants behind the trait report the same body poses as the model's kinematics at the
+/// same joint positions (rapier to rounding: its own forward kinematics).
+#[test]
+fn both_plants_report_the_models_poses() {
+    let q = [0.4, 0.3, -0.5, -1.2, 0.7, 2.1, -1.0];
+    let model = common::model("urdf/panda_7dof.urdf");
+    let mut k = aift::arm::Kinematics::new(model.clone());
+    let poses = k.set(&q).to_vec();
+    for engine in [Engine::Rapier, Engine::Articulated] {
+        let mut plant = arm("urdf/panda_7dof.urdf", engine, Integrator::Euler, 2);
+        plant.set_state(&q, &[0.0; 7]);
+        for (b, pose) in poses.iter().enumerate() {
+            let p = plant.body_pose(b);
+            let dt = (p.translation.vector - pose.translation.vector).norm();
+            let dr = p.rotation.angle_to(&pose.rotation);
+            assert!(
+                dt < 1e-12 && dr < 1e-12,
+                "{engine:?} body {b}: {dt} m, {dr} rad"
+            );
+        }
     }
 }
 
@@ -94,7 +146,7 @@ fn articulated_euler_takes_rapiers_step_and_rk4_follows_the_oracle() {
             (Engine::Articulated, Integrator::Rk4, 1),
         ] {
             let mut a = arm(file, engine, integrator, iterations);
-            let (q, us) = swing(&mut a, &[0.3, 0.2], &[30.0, -8.0], 2.0);
+            let (q, us) = swing(a.as_mut(), &[0.3, 0.2], &[30.0, -8.0], 2.0);
             let err = max_diff(&q, &q_ref);
             eprintln!(
                 "{file}: {engine:?} {integrator:?} x{iterations}: error after 2 s {err:.2e} rad, {us:.2} us/tick"
@@ -130,10 +182,11 @@ fn both_engines_converge_to_one_trajectory_on_the_7_dof_arm() {
         Integrator::Rk4,
         4,
     );
-    let (_, g) = reference.probe_dynamics(&q0, 1e-3);
+    let (_, g) = Dynamics::new(common::model("urdf/panda_7dof.urdf"), [0.0, 0.0, -9.81])
+        .mass_matrix_and_gravity(&q0);
     let push = [2.0, 3.0, -1.0, 2.0, 0.05, -0.05, 0.005];
     let tau: Vec<f64> = g.iter().zip(push).map(|(g, p)| g + p).collect();
-    let (q_ref, _) = swing(&mut reference, &q0, &tau, 0.5);
+    let (q_ref, _) = swing(reference.as_mut(), &q0, &tau, 0.5);
     let mut errors = Vec::new();
     for iterations in [1, 4, 16] {
         let mut r = arm(
@@ -142,7 +195,7 @@ fn both_engines_converge_to_one_trajectory_on_the_7_dof_arm() {
             Integrator::Euler,
             iterations,
         );
-        let (q, us) = swing(&mut r, &q0, &tau, 0.5);
+        let (q, us) = swing(r.as_mut(), &q0, &tau, 0.5);
         let err = max_diff(&q, &q_ref);
         let mut a = arm(
             "urdf/panda_7dof.urdf",
@@ -150,7 +203,7 @@ fn both_engines_converge_to_one_trajectory_on_the_7_dof_arm() {
             Integrator::Euler,
             iterations,
         );
-        let (qa, ua) = swing(&mut a, &q0, &tau, 0.5);
+        let (qa, ua) = swing(a.as_mut(), &q0, &tau, 0.5);
         eprintln!(
             "7-DOF, 0.5 s: rapier x{iterations} error {err:.2e} ({us:.1} us/tick); articulated Euler x{iterations} {:.2e} ({ua:.1} us/tick)",
             max_diff(&qa, &q_ref)

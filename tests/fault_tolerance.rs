@@ -151,7 +151,7 @@ fn the_hybrid_recovers_two_faults_in_a_row_and_a_bias_the_one_failure_bank_lost(
 ///   position and the belief re-anchored on the all-healthy hypothesis' estimate).
 #[test]
 fn the_hybrid_swaps_a_wrong_first_blame_and_is_not_hurt_by_a_mild_tachometer_gain() {
-    let engine = ["robot.engine=\"articulated\"", "duration=15.0"];
+    let engine = ["plant.engine=\"articulated\"", "duration=15.0"];
     let mut failures = Vec::new();
     let drift = common::with_faults(
         "panda_healthy.toml",

@@ -9,19 +9,23 @@ use aift::control::{Control, ControlConfig};
 use aift::estimation::Estimator;
 use aift::estimation::uaic::{Prediction, Uaic, UaicConfig, UpdateScheme};
 use aift::gp::{FitOptions, GpModel, derive_box, sample_training_set};
-use aift::plant::{Arm, ArmOptions};
 use aift::sensors::{Camera, CameraConfig, CameraModel, ChannelLayout, Readings};
 
 fn layout() -> ChannelLayout {
     ChannelLayout::new(2, CameraModel::Pinhole)
 }
-use common::repo;
+
+fn observation(gp: Arc<GpModel>) -> Arc<dyn aift::estimation::models::ObservationModel> {
+    aift::estimation::models::GpCamera::shared(layout(), gp)
+}
 
 fn gp() -> Arc<GpModel> {
-    let mut arm = Arm::from_urdf(&repo("urdf/planar_2dof.urdf"), ArmOptions::default()).unwrap();
+    let model = common::model("urdf/planar_2dof.urdf");
+    let ee = common::ee(&model);
+    let mut arm = aift::arm::Kinematics::new(model);
     let camera = Camera::new(CameraConfig::default());
     let bounds = derive_box(&[vec![-1.57, 0.0], vec![-0.2, 0.5]], 0.3);
-    let (gp, _) = sample_training_set(&mut arm, &camera, &bounds, 80, 3)
+    let (gp, _) = sample_training_set(&mut arm, &ee, &camera, &bounds, 80, 3)
         .fit(&FitOptions::default())
         .unwrap();
     Arc::new(gp)
@@ -51,7 +55,7 @@ fn free_energy_gradient_equals_finite_differences() {
             prior_warmup_ticks: 0,
             ..UaicConfig::default()
         };
-        let c = Uaic::new(config, layout(), gp.clone(), 1e-3);
+        let c = Uaic::new(config, observation(gp.clone()), 1e-3);
         let x = [-0.6, 0.21, 0.04, -0.03];
         let prev = [-0.6001, 0.2102, 0.041, -0.029];
         let r = readings();
@@ -77,7 +81,7 @@ fn free_energy_gradient_equals_finite_differences() {
 
 #[test]
 fn missing_and_zero_precision_channels_are_left_out_of_f() {
-    let c = Uaic::new(UaicConfig::default(), layout(), gp(), 1e-3);
+    let c = Uaic::new(UaicConfig::default(), observation(gp()), 1e-3);
     let x = [-0.6, 0.21, 0.04, -0.03];
     let prev = x;
     let full = readings();
@@ -99,7 +103,7 @@ fn missing_and_zero_precision_channels_are_left_out_of_f() {
 
 #[test]
 fn the_belief_runs_on_readings_with_missing_channels() {
-    let mut c = Uaic::new(UaicConfig::default(), layout(), gp(), 1e-3);
+    let mut c = Uaic::new(UaicConfig::default(), observation(gp()), 1e-3);
     let mut control = Control::new(&ControlConfig::default());
     let mut r = readings();
     c.step(&r, &PRECISIONS);
@@ -128,8 +132,7 @@ fn gauss_newton_step_lands_on_the_quadratic_models_minimum() {
             prior_warmup_ticks: 0,
             ..UaicConfig::default()
         },
-        layout(),
-        gp(),
+        observation(gp()),
         1e-3,
     );
     let precisions = [1e6, 1e6, 1e6, 1e6, 0.0, 0.0];

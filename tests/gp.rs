@@ -3,18 +3,23 @@
 
 mod common;
 
+use aift::arm::{EndEffector, Kinematics};
 use aift::gp::{FitOptions, GpModel, derive_box, evaluate_held_out, sample_training_set};
-use aift::plant::{Arm, ArmOptions};
 use aift::sensors::{Camera, CameraConfig};
-use common::repo;
 
 const DOWN: f64 = -std::f64::consts::FRAC_PI_2;
 
-fn trained(file: &str, points: &[Vec<f64>], count: usize) -> (Arm, Camera, GpModel) {
-    let mut arm = Arm::from_urdf(&repo(file), ArmOptions::default()).unwrap();
+fn trained(
+    file: &str,
+    points: &[Vec<f64>],
+    count: usize,
+) -> (Kinematics, EndEffector, Camera, GpModel) {
+    let model = common::model(file);
+    let ee = common::ee(&model);
+    let mut arm = Kinematics::new(model);
     let camera = Camera::new(CameraConfig::default());
     let bounds = derive_box(points, 0.3);
-    let set = sample_training_set(&mut arm, &camera, &bounds, count, 1);
+    let set = sample_training_set(&mut arm, &ee, &camera, &bounds, count, 1);
     assert_eq!(
         set.inputs.len(),
         count,
@@ -25,7 +30,7 @@ fn trained(file: &str, points: &[Vec<f64>], count: usize) -> (Arm, Camera, GpMod
         "{file} N={count}: LML {:.3} after {} evaluations, {:?}",
         report.log_marginal_likelihood, report.evaluations, model.hyperparameters
     );
-    (arm, camera, model)
+    (arm, ee, camera, model)
 }
 
 fn paper_points() -> Vec<Vec<f64>> {
@@ -34,8 +39,8 @@ fn paper_points() -> Vec<Vec<f64>> {
 
 #[test]
 fn paper_arm_gp_learns_the_distortion_with_200_points() {
-    let (mut arm, camera, model) = trained("urdf/planar_2dof.urdf", &paper_points(), 200);
-    let err = evaluate_held_out(&model, &mut arm, &camera, 2000, 2);
+    let (mut arm, ee, camera, model) = trained("urdf/planar_2dof.urdf", &paper_points(), 200);
+    let err = evaluate_held_out(&model, &mut arm, &ee, &camera, 2000, 2);
     eprintln!(
         "2-DOF, 200 points: RMS {:.2} mm, max {:.2} mm",
         err.rms * 1e3,
@@ -54,8 +59,8 @@ fn three_dof_gp_reaches_the_same_accuracy_with_400_points() {
         vec![-0.4, 0.6, 0.3],
         vec![-0.8, 0.4, -0.2],
     ];
-    let (mut arm, camera, model) = trained("urdf/planar_3dof.urdf", &points, 400);
-    let err = evaluate_held_out(&model, &mut arm, &camera, 2000, 2);
+    let (mut arm, ee, camera, model) = trained("urdf/planar_3dof.urdf", &points, 400);
+    let err = evaluate_held_out(&model, &mut arm, &ee, &camera, 2000, 2);
     eprintln!(
         "3-DOF, 400 points: RMS {:.2} mm, max {:.2} mm",
         err.rms * 1e3,
@@ -66,7 +71,7 @@ fn three_dof_gp_reaches_the_same_accuracy_with_400_points() {
 
 #[test]
 fn trained_jacobian_equals_central_differences() {
-    let (_, _, model) = trained("urdf/planar_2dof.urdf", &paper_points(), 100);
+    let (_, _, _, model) = trained("urdf/planar_2dof.urdf", &paper_points(), 100);
     for q in [[-1.2, 0.3], [-0.6, 0.2], [-0.25, 0.45]] {
         let (mut g, mut jac) = ([0.0; 2], [0.0; 4]);
         model.predict(&q, &mut g, &mut jac);
@@ -97,7 +102,7 @@ fn trained_jacobian_equals_central_differences() {
 
 #[test]
 fn saved_model_reloads_and_predicts_bit_for_bit() {
-    let (_, _, model) = trained("urdf/planar_2dof.urdf", &paper_points(), 60);
+    let (_, _, _, model) = trained("urdf/planar_2dof.urdf", &paper_points(), 60);
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("gp.json");
     std::fs::write(&path, model.to_json()).unwrap();
@@ -114,7 +119,7 @@ fn saved_model_reloads_and_predicts_bit_for_bit() {
 
 #[test]
 fn training_is_deterministic_for_a_seed() {
-    let (_, _, a) = trained("urdf/planar_2dof.urdf", &paper_points(), 50);
-    let (_, _, b) = trained("urdf/planar_2dof.urdf", &paper_points(), 50);
+    let (_, _, _, a) = trained("urdf/planar_2dof.urdf", &paper_points(), 50);
+    let (_, _, _, b) = trained("urdf/planar_2dof.urdf", &paper_points(), 50);
     assert_eq!(a.to_json(), b.to_json());
 }

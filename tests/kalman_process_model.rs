@@ -25,7 +25,7 @@ fn hard_start(overrides: &[&str]) -> aift::scenario::RunSetup {
     let path = dir.path().join("hard_start.toml");
     std::fs::write(&path, text).unwrap();
     let mut all = vec![
-        "robot.engine=\"articulated\"".to_string(),
+        "plant.engine=\"articulated\"".to_string(),
         "duration=4.0".to_string(),
     ];
     all.extend(overrides.iter().map(|s| s.to_string()));

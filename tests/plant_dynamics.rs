@@ -2,22 +2,21 @@
 
 mod common;
 
-use aift::plant::{Arm, ArmOptions};
-use common::{PaperArm, repo, solve2};
+use aift::arm::kinematics;
+use aift::plant::{Engine, Integrator, Plant};
+use common::{PaperArm, solve2};
 
-fn paper_arm(iterations: usize) -> Arm {
-    Arm::from_urdf(
-        &repo("urdf/planar_2dof.urdf"),
-        ArmOptions {
-            solver_iterations: iterations,
-            ..ArmOptions::default()
-        },
+fn paper_arm(iterations: usize) -> Box<dyn Plant> {
+    common::plant_of(
+        "urdf/planar_2dof.urdf",
+        Engine::Rapier,
+        Integrator::Euler,
+        iterations,
     )
-    .expect("the paper arm loads")
 }
 
 fn simulate(
-    arm: &mut Arm,
+    arm: &mut dyn Plant,
     q0: [f64; 2],
     tau: [f64; 2],
     duration: f64,
@@ -43,9 +42,8 @@ fn matches_rk4_reference_with_zero_and_constant_torques() {
     for tau in [[0.0, 0.0], [30.0, -8.0]] {
         let (q_ref, _) = oracle.rk4([0.3, 0.2], [0.0, 0.0], tau, 2.0, 1e-5);
         // Default settings (2 solver iterations).
-        let mut arm =
-            Arm::from_urdf(&repo("urdf/planar_2dof.urdf"), ArmOptions::default()).unwrap();
-        let (q, _) = simulate(&mut arm, [0.3, 0.2], tau, 2.0, 1e-3);
+        let mut arm = common::rapier("urdf/planar_2dof.urdf");
+        let (q, _) = simulate(arm.as_mut(), [0.3, 0.2], tau, 2.0, 1e-3);
         let err = max_error(q, q_ref);
         eprintln!("tau {tau:?}: q {q:?} ref {q_ref:?} error {err:.3e}");
         assert!(err <= 1e-3, "max |q - q_ref| = {err} for tau {tau:?}");
@@ -61,7 +59,7 @@ fn error_shrinks_as_solver_iterations_grow() {
         .map(|&it| {
             let mut arm = paper_arm(it);
             max_error(
-                simulate(&mut arm, [0.3, 0.2], [0.0, 0.0], 2.0, 1e-3).0,
+                simulate(arm.as_mut(), [0.3, 0.2], [0.0, 0.0], 2.0, 1e-3).0,
                 q_ref,
             )
         })
@@ -76,7 +74,7 @@ fn one_tick_from_rest_equals_the_implicit_damping_map() {
     let dt = 1e-3;
     for (q0, tau) in [([0.3, 0.2], [0.0, 0.0]), ([-1.0, 0.7], [40.0, -5.0])] {
         let mut arm = paper_arm(1);
-        let (q, qd) = simulate(&mut arm, q0, tau, dt, dt);
+        let (q, qd) = simulate(arm.as_mut(), q0, tau, dt, dt);
         // rapier applies joint damping implicitly: qd1 = dt (M + dt D)^-1 (tau - G).
         let mut m = oracle.mass_matrix(q0);
         m[0][0] += dt * oracle.d1;
@@ -110,7 +108,7 @@ fn viscous_friction_from_the_urdf_is_applied() {
     let (q_damped, _) = oracle.rk4([0.3, 0.2], [0.0, 0.0], [0.0, 0.0], 0.5, 1e-5);
     let (q_free, _) = undamped.rk4([0.3, 0.2], [0.0, 0.0], [0.0, 0.0], 0.5, 1e-5);
     let mut arm = paper_arm(4);
-    let (q, _) = simulate(&mut arm, [0.3, 0.2], [0.0, 0.0], 0.5, 1e-3);
+    let (q, _) = simulate(arm.as_mut(), [0.3, 0.2], [0.0, 0.0], 0.5, 1e-3);
     let to_damped = max_error(q, q_damped);
     let to_free = max_error(q, q_free);
     eprintln!("distance to damped {to_damped:.3e}, to undamped {to_free:.3e}");
@@ -121,7 +119,7 @@ fn viscous_friction_from_the_urdf_is_applied() {
 fn hanging_pose_is_an_equilibrium() {
     let mut arm = paper_arm(4);
     let down = -std::f64::consts::FRAC_PI_2;
-    let (q, qd) = simulate(&mut arm, [down, 0.0], [0.0, 0.0], 2.0, 1e-3);
+    let (q, qd) = simulate(arm.as_mut(), [down, 0.0], [0.0, 0.0], 2.0, 1e-3);
     eprintln!("after 2 s hanging: q {q:?} qd {qd:?}");
     assert!(max_error(q, [down, 0.0]) < 1e-9, "{q:?}");
     assert!(max_error(qd, [0.0, 0.0]) < 1e-9, "{qd:?}");
@@ -133,14 +131,17 @@ fn end_effector_and_jacobian_follow_forward_kinematics() {
     let q = [0.4, -0.9];
     arm.set_state(&q, &[0.0, 0.0]);
     let (l1, l2) = (1.0446, 1.0111);
-    let p = arm.ee_position();
+    let ee = common::ee(arm.model());
+    let p = arm.ee_position(&ee);
     let x = l1 * q[0].cos() + l2 * (q[0] + q[1]).cos();
     let z = l1 * q[0].sin() + l2 * (q[0] + q[1]).sin();
     assert!(
         (p.x - x).abs() < 1e-12 && p.y.abs() < 1e-12 && (p.z - z).abs() < 1e-12,
         "{p}"
     );
-    let jac = arm.ee_jacobian();
+    let mut poses = vec![nalgebra::Isometry3::identity(); arm.model().bodies.len()];
+    arm.body_poses_into(&mut poses);
+    let jac = kinematics::ee_jacobian(arm.model(), &ee, &poses);
     let dx = [
         -l1 * q[0].sin() - l2 * (q[0] + q[1]).sin(),
         -l2 * (q[0] + q[1]).sin(),

@@ -176,7 +176,7 @@ fn in_memory_trajectory_is_bounded_before_the_run() {
     let s = setup(
         "paper_healthy.toml",
         // Within the trajectory file's bound (4 GiB), beyond the in-memory one (2^27 values).
-        &["duration=4100.0", "robot.engine=\"articulated\""],
+        &["duration=4100.0", "plant.engine=\"articulated\""],
     );
     let err = run_files::run_in_memory(&s, Method::NoFt, 1, None).unwrap_err();
     let msg = err.to_string();

@@ -3,22 +3,22 @@
 
 mod common;
 
-use aift::plant::{Arm, ArmOptions};
+use aift::plant::Plant;
 use aift::sensors::{
     Camera, CameraConfig, CameraModel, Channel, ChannelLayout, Fault, FaultKind, FaultSpec,
     Readings, SensorConfig, SensorSuite,
 };
-use common::repo;
 
-fn arm(file: &str) -> Arm {
-    Arm::from_urdf(&repo(file), ArmOptions::default()).unwrap()
+fn arm(file: &str) -> Box<dyn Plant> {
+    common::rapier(file)
 }
 
-fn suite(arm: &Arm, faults: &[Fault], seed: u64) -> SensorSuite {
+fn suite(arm: &dyn Plant, faults: &[Fault], seed: u64) -> SensorSuite {
     SensorSuite::new(
         ChannelLayout::new(arm.n_joints(), CameraModel::Pinhole),
         &SensorConfig::default(),
         Camera::new(CameraConfig::default()),
+        common::ee(arm.model()),
         faults,
         1e-3,
         seed,
@@ -26,7 +26,7 @@ fn suite(arm: &Arm, faults: &[Fault], seed: u64) -> SensorSuite {
 }
 
 /// Noise samples per channel over `ticks` ticks of a resting arm.
-fn noise_series(arm: &Arm, suite: &mut SensorSuite, ticks: u64) -> Vec<Vec<f64>> {
+fn noise_series(arm: &dyn Plant, suite: &mut SensorSuite, ticks: u64) -> Vec<Vec<f64>> {
     let layout = suite.layout();
     let mut out = vec![Vec::with_capacity(ticks as usize); layout.len()];
     let mut readings = Readings::missing(&layout);
@@ -49,9 +49,9 @@ fn mean_std(x: &[f64]) -> (f64, f64) {
 #[test]
 fn noise_has_the_configured_mean_and_std() {
     let arm = arm("urdf/planar_2dof.urdf");
-    let mut s = suite(&arm, &[], 7);
+    let mut s = suite(arm.as_ref(), &[], 7);
     let n = 100_000;
-    let series = noise_series(&arm, &mut s, n);
+    let series = noise_series(arm.as_ref(), &mut s, n);
     let sigmas = s.sigmas().to_vec();
     for (c, x) in series.iter().enumerate() {
         let (m, sd) = mean_std(x);
@@ -73,8 +73,8 @@ fn streams_are_independent_of_each_other_and_of_the_channel_count() {
     let arm2 = arm("urdf/planar_2dof.urdf");
     let arm3 = arm("urdf/planar_3dof.urdf");
     let n = 100_000;
-    let s2 = noise_series(&arm2, &mut suite(&arm2, &[], 11), n);
-    let s3 = noise_series(&arm3, &mut suite(&arm3, &[], 11), n);
+    let s2 = noise_series(arm2.as_ref(), &mut suite(arm2.as_ref(), &[], 11), n);
+    let s3 = noise_series(arm3.as_ref(), &mut suite(arm3.as_ref(), &[], 11), n);
     let l2 = ChannelLayout::new(2, CameraModel::Pinhole);
     let l3 = ChannelLayout::new(3, CameraModel::Pinhole);
     // Same channel, same seed: the same noise, whatever the number of joints.
@@ -110,7 +110,7 @@ fn streams_are_independent_of_each_other_and_of_the_channel_count() {
         }
     }
     // A different seed gives different noise.
-    let other = noise_series(&arm2, &mut suite(&arm2, &[], 12), 10);
+    let other = noise_series(arm2.as_ref(), &mut suite(arm2.as_ref(), &[], 12), 10);
     assert_ne!(other[0], s2[0][..10].to_vec());
 }
 
@@ -128,14 +128,14 @@ fn adding_a_fault_does_not_change_another_channels_noise() {
     )
     .to_fault(&layout2())
     .unwrap();
-    let mut clean = suite(&arm, &[], 3);
-    let mut faulty = suite(&arm, &[spikes], 3);
+    let mut clean = suite(arm.as_ref(), &[], 3);
+    let mut faulty = suite(arm.as_ref(), &[spikes], 3);
     let layout = clean.layout();
     let (mut a, mut b) = (Readings::missing(&layout), Readings::missing(&layout));
     let mut differed = false;
     for k in 0..2000 {
-        clean.read(&arm, k, &mut a);
-        faulty.read(&arm, k, &mut b);
+        clean.read(arm.as_ref(), k, &mut a);
+        faulty.read(arm.as_ref(), k, &mut b);
         for c in 1..layout.len() {
             assert_eq!(a.values[c], b.values[c], "tick {k} channel {c}");
         }
@@ -148,13 +148,13 @@ fn adding_a_fault_does_not_change_another_channels_noise() {
 fn readings_are_truth_plus_noise_and_the_camera_sees_the_distorted_tip() {
     let mut arm = arm("urdf/planar_2dof.urdf");
     arm.set_state(&[-0.2, 0.5], &[0.3, -0.1]);
-    let mut s = suite(&arm, &[], 5);
+    let mut s = suite(arm.as_ref(), &[], 5);
     let mut r = Readings::missing(&s.layout());
-    s.read(&arm, 0, &mut r);
+    s.read(arm.as_ref(), 0, &mut r);
     let noise = s.noise().to_vec();
     assert_eq!(r.values[0], Some(-0.2 + noise[0]));
     assert_eq!(r.values[3], Some(-0.1 + noise[3]));
-    let p = arm.ee_position();
+    let p = arm.ee_position(&common::ee(arm.model()));
     let image = Camera::new(CameraConfig::default()).project(&p).unwrap();
     assert_eq!(r.values[4], Some(image[0] + noise[4]));
     assert_eq!(r.values[5], Some(image[1] + noise[5]));
@@ -173,16 +173,25 @@ fn an_occluded_end_effector_reports_missing() {
         up: [1.0, 0.0, 0.0],
         ..CameraConfig::default()
     });
-    let mut s = SensorSuite::new(layout2(), &SensorConfig::default(), camera, &[], 1e-3, 1);
+    let ee = common::ee(arm.model());
+    let mut s = SensorSuite::new(
+        layout2(),
+        &SensorConfig::default(),
+        camera,
+        ee,
+        &[],
+        1e-3,
+        1,
+    );
     let mut r = Readings::missing(&s.layout());
     arm.set_state(&[-std::f64::consts::FRAC_PI_2, 0.0], &[0.0, 0.0]);
-    s.read(&arm, 0, &mut r);
+    s.read(arm.as_ref(), 0, &mut r);
     assert_eq!((r.values[4], r.values[5]), (None, None));
     assert_eq!(s.camera_miss(), Some(aift::sensors::NotSeen::Occluded));
     assert!(r.values[0].is_some(), "encoders still read");
     // Stretched out horizontally the tip is in plain view.
     arm.set_state(&[0.0, 0.0], &[0.0, 0.0]);
-    s.read(&arm, 1, &mut r);
+    s.read(arm.as_ref(), 1, &mut r);
     assert!(r.values[4].is_some() && r.values[5].is_some());
 }
 
@@ -209,16 +218,16 @@ fn with_and_without(
     arm.set_state(&[-0.5, 0.5], &[0.0, 0.0]);
     arm.set_torques(&[60.0, 5.0]);
     let fault = fault.to_fault(&layout2()).unwrap();
-    let mut clean = suite(&arm, &[], 9);
-    let mut faulty = suite(&arm, &[fault], 9);
+    let mut clean = suite(arm.as_ref(), &[], 9);
+    let mut faulty = suite(arm.as_ref(), &[fault], 9);
     let (mut a, mut b) = (
         Readings::missing(&clean.layout()),
         Readings::missing(&clean.layout()),
     );
     let (mut fa, mut cl, mut noise) = (vec![], vec![], vec![]);
     for k in 0..300 {
-        clean.read(&arm, k, &mut a);
-        faulty.read(&arm, k, &mut b);
+        clean.read(arm.as_ref(), k, &mut a);
+        faulty.read(arm.as_ref(), k, &mut b);
         fa.push(b.values[channel]);
         cl.push(a.values[channel]);
         noise.push(clean.noise()[channel]);
@@ -398,13 +407,13 @@ fn overlapping_faults_apply_in_order_and_end_separately() {
     let gain = spec("enc", FaultKind::Gain { factor: 2.0 }, 0.2, Some(0.4))
         .to_fault(&layout2())
         .unwrap();
-    let mut clean = suite(&arm, &[], 4);
-    let mut faulty = suite(&arm, &[bias, gain], 4);
+    let mut clean = suite(arm.as_ref(), &[], 4);
+    let mut faulty = suite(arm.as_ref(), &[bias, gain], 4);
     let l = layout2();
     let (mut a, mut b) = (Readings::missing(&l), Readings::missing(&l));
     for k in 0..500u64 {
-        clean.read(&arm, k, &mut a);
-        faulty.read(&arm, k, &mut b);
+        clean.read(arm.as_ref(), k, &mut a);
+        faulty.read(arm.as_ref(), k, &mut b);
         let (c, f) = (a.values[0].unwrap(), b.values[0].unwrap());
         let expected = match k {
             100..200 => c + 0.1,

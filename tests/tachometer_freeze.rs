@@ -81,7 +81,7 @@ fn the_hybrid_holds_an_undamped_ur5_through_a_tachometer_freeze_with_the_switche
         format!("{text}\n[[faults]]\nchannel = \"tach3\"\nkind = \"freeze\"\nstart = 4.0\n"),
     )
     .unwrap();
-    let engine = "robot.engine=\"articulated\"".to_string();
+    let engine = "plant.engine=\"articulated\"".to_string();
     let loaded =
         aift::scenario::LoadedScenario::from_file(&path, std::slice::from_ref(&engine)).unwrap();
     let fixed = aift::scenario::RunSetup::prepare(loaded).unwrap();

@@ -4,10 +4,11 @@ mod common;
 
 use std::path::Path;
 
-use aift::plant::{Arm, ArmOptions, PlantError, UrdfOptions, parse_urdf, parse_urdf_with};
+use aift::arm::{ArmError as PlantError, EndEffector, UrdfOptions, parse_urdf, parse_urdf_with};
+use aift::plant::PlantSettings;
 use proptest::prelude::*;
 
-fn parse(text: &str) -> Result<aift::plant::ArmModel, PlantError> {
+fn parse(text: &str) -> Result<aift::arm::ArmModel, PlantError> {
     parse_urdf(text, Path::new("bad.urdf"))
 }
 
@@ -71,7 +72,7 @@ macro_rules! assert_err {
 
 #[test]
 fn unreadable_file() {
-    let r = aift::plant::load_urdf(Path::new("/nonexistent/arm.urdf"));
+    let r = aift::arm::load_urdf(Path::new("/nonexistent/arm.urdf"));
     assert!(matches!(r, Err(PlantError::Unreadable { .. })));
 }
 
@@ -87,7 +88,7 @@ fn binary_file() {
     let path = dir.path().join("bin.urdf");
     std::fs::write(&path, [0u8, 159, 146, 150, 255, 0, 1, 2]).unwrap();
     assert!(matches!(
-        aift::plant::load_urdf(&path),
+        aift::arm::load_urdf(&path),
         Err(PlantError::NotText { .. })
     ));
     assert_err!(parse("<robot>\0</robot>"), PlantError::NotText { .. });
@@ -273,15 +274,9 @@ fn zero_mass_fixed_root_and_flange_load() {
         "the flange adds nothing"
     );
     assert!(m.warnings.is_empty(), "{:?}", m.warnings);
-    let arm = Arm::new(
-        m,
-        ArmOptions {
-            ee_link: "flange".into(),
-            ..ArmOptions::default()
-        },
-    )
-    .unwrap();
-    assert!((arm.ee_position().x - 3.0).abs() < 1e-12);
+    let ee = EndEffector::new(&m, "flange", [0.0; 3]).unwrap();
+    let arm = aift::plant::build(m.into(), [0.0, 0.0, -9.81], &PlantSettings::default()).unwrap();
+    assert!((arm.ee_position(&ee).x - 3.0).abs() < 1e-12);
 }
 
 #[test]
@@ -453,28 +448,17 @@ fn massless_tip_merged_by_a_fixed_joint_is_fine_and_can_be_the_end_effector() {
         ),
     );
     let model = parse(&text).unwrap();
-    let arm = Arm::new(
-        model,
-        ArmOptions {
-            ee_link: "tip".into(),
-            ..ArmOptions::default()
-        },
-    )
-    .unwrap();
-    let p = arm.ee_position();
+    let ee = EndEffector::new(&model, "tip", [0.0; 3]).unwrap();
+    let arm =
+        aift::plant::build(model.into(), [0.0, 0.0, -9.81], &PlantSettings::default()).unwrap();
+    let p = arm.ee_position(&ee);
     assert!((p.x - 2.0).abs() < 1e-12, "{p}");
 }
 
 #[test]
 fn unknown_end_effector() {
     let model = parse(&good()).unwrap();
-    let r = Arm::new(
-        model,
-        ArmOptions {
-            ee_link: "hand".into(),
-            ..ArmOptions::default()
-        },
-    );
+    let r = EndEffector::new(&model, "hand", [0.0; 3]);
     assert!(matches!(r, Err(PlantError::UnknownEndEffector { .. })));
 }
 
@@ -511,7 +495,7 @@ fn bundled_urdfs_are_valid() {
         "urdf/spatial_3dof_lowdamp.urdf",
         "urdf/panda_7dof.urdf",
     ] {
-        let m = aift::plant::load_urdf(&common::repo(file)).unwrap();
+        let m = aift::arm::load_urdf(&common::repo(file)).unwrap();
         assert!(m.warnings.is_empty(), "{file}: {:?}", m.warnings);
     }
 }
@@ -541,8 +525,12 @@ proptest! {
         }
         let text: String = text.into_iter().collect();
         if let Ok(model) = parse(&text) {
-            // Whatever loads must also build.
-            let _ = Arm::new(model, ArmOptions::default());
+            // Whatever loads must also build, on both engines.
+            let model = std::sync::Arc::new(model);
+            for engine in [aift::plant::Engine::Rapier, aift::plant::Engine::Articulated] {
+                let settings = PlantSettings { engine, ..Default::default() };
+                let _ = aift::plant::build(model.clone(), [0.0, 0.0, -9.81], &settings);
+            }
         }
     }
 }

@@ -15,7 +15,7 @@ for arm in paper_healthy undamped2_healthy planar3_healthy spatial3_healthy spat
   S=assets/scenarios/$arm.toml
   $B train-gp "$S" --out "$tmp/gp-$arm.json" >/dev/null
   for m in "${methods[@]}"; do
-    $B run "$S" --method "$m" --seed 1 --set 'robot.engine="articulated"' --set duration=15.0 \
+    $B run "$S" --method "$m" --seed 1 --set 'plant.engine="articulated"' --set duration=15.0 \
       --set "gp.model=\"$tmp/gp-$arm.json\"" --out "$tmp/run" --force >/dev/null
     python3 -c "import json,sys;print(sys.argv[1], sys.argv[2], json.load(open(sys.argv[3]))['ticks_per_second'])" \
       "$arm" "$m" "$tmp/run/summary.json" >> "$tmp/tps.txt"

@@ -38,7 +38,7 @@ directory, or to the repository root if they do not exist there)::
 
     tools/compare_mujoco.py                       # paper arm, 20000 steps, 5 repeats
     tools/compare_mujoco.py --check-dynamics
-    tools/compare_mujoco.py --set robot.engine=articulated   # aift's own engine
+    tools/compare_mujoco.py --set plant.engine=articulated   # aift's own engine
     tools/compare_mujoco.py --urdf urdf/spatial_3dof.urdf \\
         --scenario assets/scenarios/spatial3_encoder_freeze.toml --repeats 3
 
@@ -99,7 +99,7 @@ def resolve(path):
 
 def read_scenario(path):
     """The few scenario values used here: dt, duration, robot.urdf, robot.ee_link,
-    robot.solver_iterations, initial.q, targets[0].q. Missing values are None."""
+    plant.rapier.solver_iterations, initial.q, targets[0].q. Missing values are None."""
     text = path.read_text()
     data = None
     try:
@@ -122,7 +122,7 @@ def read_scenario(path):
             "duration": data.get("duration"),
             "urdf": robot.get("urdf"),
             "ee_link": robot.get("ee_link"),
-            "solver_iterations": robot.get("solver_iterations"),
+            "solver_iterations": data.get("plant", {}).get("rapier", {}).get("solver_iterations"),
             "q0": data.get("initial", {}).get("q"),
             "target_q": targets[0].get("q") if targets else None,
         }
@@ -152,7 +152,7 @@ def read_scenario(path):
                 out[key] = float(val)
             elif section == "robot" and key in ("urdf", "ee_link"):
                 out[key] = val.strip("\"'")
-            elif section == "robot" and key == "solver_iterations":
+            elif section == "plant.rapier" and key == "solver_iterations":
                 out[key] = int(val)
             elif section == "initial" and key == "q":
                 out["q0"] = num_list(val)
@@ -445,7 +445,7 @@ def main():
                     help="aift scenario using that URDF "
                          "(default assets/scenarios/paper_encoder_freeze.toml)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                    help="passed to `aift bench --set` (repeatable), e.g. robot.engine=articulated")
+                    help="passed to `aift bench --set` (repeatable), e.g. plant.engine=articulated")
     ap.add_argument("--steps", type=int, default=20000, help="steps/ticks per timed run (20000)")
     ap.add_argument("--repeats", type=int, default=5, help="timed runs of each figure (5)")
     ap.add_argument("--aift", default=None, help="aift binary (default target/release/aift)")

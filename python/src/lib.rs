@@ -788,12 +788,12 @@ fn merge(py: Python<'_>, shards: Vec<PathBuf>, out: PathBuf, force: bool) -> PyR
 #[pyfunction]
 #[pyo3(signature = (path, ee = None, balance_inertia = false))]
 fn check_urdf(path: PathBuf, ee: Option<String>, balance_inertia: bool) -> PyResult<String> {
-    let model = aift::plant::load_urdf_with(&path, &aift::plant::UrdfOptions { balance_inertia })
+    let model = aift::arm::load_urdf_with(&path, &aift::arm::UrdfOptions { balance_inertia })
         .map_err(|e| bad(aift::error_chain(&e)))?;
     if let Some(ee) = ee.as_deref().filter(|ee| model.link(ee).is_none()) {
         return Err(bad(aift::error_chain(&model.unknown_link_error(ee))));
     }
-    Ok(aift::plant::describe_arm(&model, &path, ee.as_deref()).to_string())
+    Ok(aift::arm::describe_arm(&model, &path, ee.as_deref()).to_string())
 }
 
 /// A scenario derived from any URDF (as `aift init`): the TOML text, naming the URDF as

@@ -51,7 +51,7 @@ def tiny_campaign(repo):
 name = "{name}"
 seeds = 1
 methods = {quoted(methods)}
-set = ["robot.engine=\\"articulated\\"", "duration=9.0"]
+set = ["plant.engine=\\"articulated\\"", "duration=9.0"]
 channels = {quoted(channels)}
 
 [[arms]]

@@ -254,7 +254,7 @@ def test_an_interrupted_run_leaves_no_folder(tmp_path):
     import os
     import signal
 
-    sc = aift.Scenario.default(["duration=300.0", "robot.engine=\"articulated\""])
+    sc = aift.Scenario.default(["duration=300.0", "plant.engine=\"articulated\""])
     aift.run(sc.copy().set("duration", 0.1), method="no-ft")  # the GP trained, the cache warm
     timer = threading.Timer(0.5, lambda: os.kill(os.getpid(), signal.SIGINT))
     timer.start()

@@ -46,10 +46,11 @@ use std::sync::Arc;
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
-use super::kalman::{Ekf, ModelPrediction, linearise_bank};
+use super::bank::{Floor, HypothesisBank};
+use super::kalman::Ekf;
+use super::models::{ArmTransition, ConstantVelocity, ObservationModel, TransitionModel};
 use super::uaic::{PriorMode, Uaic};
 use super::{Estimate, Estimator, EstimatorInput};
-use crate::gp::GpModel;
 use crate::sensors::{Channel, ChannelLayout, NOISE_FREE_PRECISION};
 
 /// The bank's transition model.
@@ -230,6 +231,13 @@ impl HybridConfig {
     }
 }
 
+/// The hybrid's probability floor: 1e-300, against underflow only (the switching prior keeps
+/// every hypothesis revivable), not renormalised.
+const FLOOR: Floor = Floor {
+    value: 1e-300,
+    renormalise: false,
+};
+
 /// A slot of the bank, relative to the base hypothesis.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Slot {
@@ -244,7 +252,9 @@ enum Slot {
 pub struct Hybrid {
     uaic: Uaic,
     layout: ChannelLayout,
-    bank: Vec<Ekf>,
+    /// The hypotheses (slots relative to the base, see [`Slot`]), their probabilities and
+    /// which are in play (swap slots only while the base holds a failure).
+    bank: HypothesisBank,
     /// The channels a hypothesis can hold failed: each encoder and tachometer, and the camera
     /// as its first output (with `camera = "bank"`).
     keys: Vec<usize>,
@@ -252,16 +262,13 @@ pub struct Hybrid {
     base_failed: Vec<bool>,
     /// The base's failed keys in the order they were added (the last is the least established).
     order: Vec<usize>,
-    /// Which slots are in the bank now (swap slots only while the base holds a failure).
-    active: Vec<bool>,
     /// The all-healthy hypothesis' covariance when the first failure was accepted: a restarted
     /// hypothesis that trusts a channel the base holds failed starts with it.
     healthy_p: DMatrix<f64>,
-    probability: Vec<f64>,
     /// The most probable hypothesis, and since when (the resync clock).
     winner: usize,
     winner_since: u64,
-    model: Option<ModelPrediction>,
+    model: Box<dyn TransitionModel>,
     config: HybridConfig,
     nominal: Vec<f64>,
     precisions: Vec<f64>,
@@ -269,8 +276,6 @@ pub struct Hybrid {
     floor: f64,
     initialised: bool,
     ticks: u64,
-    // Scratch: each hypothesis' log evidence.
-    ll: Vec<f64>,
     // Scratch of a rebase or restart: the slots that keep their states, the new probabilities.
     kept: Vec<bool>,
     scratch_p: Vec<f64>,
@@ -283,11 +288,11 @@ pub struct Hybrid {
 }
 
 impl Hybrid {
-    /// `ekf` is the bank's template (its process noise already chosen for the model).
+    /// `ekf` is the bank's template, `model` its transition.
     pub fn new(
         uaic: Uaic,
         ekf: Ekf,
-        model: Option<ModelPrediction>,
+        model: Box<dyn TransitionModel>,
         config: HybridConfig,
         nominal: &[f64],
         floor: f64,
@@ -316,18 +321,14 @@ impl Hybrid {
         for p in &mut probability[1..=k] {
             *p = 1e-3 / k as f64;
         }
-        let mut active = vec![false; h];
-        active[..=k].fill(true);
         Self {
             uaic,
             layout,
             healthy_p: ekf.p.clone(),
-            bank: vec![ekf; h],
+            bank: HypothesisBank::new(ekf, probability, 1 + k),
             keys,
             base_failed: vec![false; layout.len()],
             order: Vec::with_capacity(k),
-            active,
-            probability,
             winner: 0,
             winner_since: 0,
             model,
@@ -338,7 +339,6 @@ impl Hybrid {
             floor,
             initialised: false,
             ticks: 0,
-            ll: vec![0.0; h],
             kept: vec![false; h],
             scratch_p: vec![0.0; h],
             last: vec![None; layout.len()],
@@ -352,7 +352,7 @@ impl Hybrid {
     /// covariance added). Works in the preallocated `gap`, `solved` and `factor` (a degenerate
     /// covariance, the failure path, allocates a new factor).
     fn outside(&mut self, j: usize) -> bool {
-        let f = &self.bank[j];
+        let f = &self.bank.filters[j];
         let b = self.uaic.belief();
         if b.len() != f.x.len() {
             return false;
@@ -385,7 +385,7 @@ impl Hybrid {
     /// `camera = "bank"`), the base with its last failure swapped for key k (slot 1 + K + k; 0
     /// while inactive). `failed_channels` says what the base holds.
     pub fn probabilities(&self) -> &[f64] {
-        &self.probability
+        &self.bank.probability
     }
 
     /// The channels the base hypothesis holds failed, the failures the bank has accepted
@@ -460,8 +460,8 @@ impl Hybrid {
         let h = self.bank.len();
         let mut p = std::mem::take(&mut self.scratch_p);
         p.fill(0.0);
-        p[0] = self.probability[w];
-        let old_base = self.probability[0];
+        p[0] = self.bank.probability[w];
+        let old_base = self.bank.probability[0];
         // Slots whose filters keep their states.
         let mut kept = std::mem::take(&mut self.kept);
         kept.fill(false);
@@ -472,17 +472,17 @@ impl Hybrid {
                 // A new failure: the old base is "t came back", the old toggles of other keys
                 // (base + t') are the new swaps (new base - t + t').
                 if self.order.is_empty() {
-                    self.healthy_p.copy_from(&self.bank[0].p);
+                    self.healthy_p.copy_from(&self.bank.filters[0].p);
                 }
                 self.base_failed[t] = true;
                 self.order.push(t);
-                self.bank.swap(0, w);
+                self.bank.filters.swap(0, w);
                 p[w] = old_base;
                 kept[w] = true;
                 for i in 0..k {
                     if !self.base_failed[self.keys[i]] {
-                        self.bank.swap(1 + i, 1 + k + i);
-                        p[1 + k + i] = self.probability[1 + i];
+                        self.bank.filters.swap(1 + i, 1 + k + i);
+                        p[1 + k + i] = self.bank.probability[1 + i];
                         kept[1 + k + i] = true;
                     }
                 }
@@ -491,7 +491,7 @@ impl Hybrid {
                 // A fault that ended: the old base is "t failed after all".
                 self.base_failed[t] = false;
                 self.order.retain(|&c| c != t);
-                self.bank.swap(0, w);
+                self.bank.filters.swap(0, w);
                 p[w] = old_base;
                 kept[w] = true;
             }
@@ -504,22 +504,22 @@ impl Hybrid {
                 self.order.pop();
                 self.order.push(t);
                 let back = 1 + k + self.keys.iter().position(|&c| c == b).expect("a key");
-                self.bank.swap(0, w);
-                self.bank.swap(w, back);
+                self.bank.filters.swap(0, w);
+                self.bank.filters.swap(w, back);
                 p[back] = old_base;
                 kept[back] = true;
             }
         }
         for j in 1..h {
-            self.active[j] = match self.slot(j) {
+            self.bank.active[j] = match self.slot(j) {
                 Slot::Base | Slot::Toggle(_) => true,
                 Slot::Swap(t) => !self.order.is_empty() && !self.base_failed[t],
             };
         }
-        let m = self.active.iter().filter(|&&a| a).count();
+        let m = self.bank.active_count();
         let floor = self.config.switch / (m - 1) as f64;
         for j in 1..h {
-            if !self.active[j] {
+            if !self.bank.active[j] {
                 p[j] = 0.0;
                 kept[j] = true;
             } else if !kept[j] {
@@ -527,7 +527,7 @@ impl Hybrid {
             }
         }
         let total: f64 = p.iter().sum();
-        for (q, v) in self.probability.iter_mut().zip(&p) {
+        for (q, v) in self.bank.probability.iter_mut().zip(&p) {
             *q = v / total;
         }
         self.kept = kept;
@@ -545,11 +545,11 @@ impl Hybrid {
     /// rival (the Panda shoulder's encoder drift, first blamed on its tachometer, ended 0.02 rad
     /// off when the encoder swap restarted from that base).
     fn resync(&mut self) {
-        let m = self.active.iter().filter(|&&a| a).count();
+        let m = self.bank.active_count();
         let floor = self.config.switch / (m - 1) as f64;
         let failed = !self.order.is_empty();
         for j in 0..self.bank.len() {
-            let favoured = self.probability[j] > floor;
+            let favoured = self.bank.probability[j] > floor;
             let swap = matches!(self.slot(j), Slot::Swap(_));
             self.kept[j] = j == 0 || ((!failed || swap) && favoured);
         }
@@ -564,11 +564,11 @@ impl Hybrid {
     /// tick, and an encoder bias pass for a healthy encoder.
     fn restart_from_base(&mut self) {
         for j in 1..self.bank.len() {
-            if self.kept[j] || !self.active[j] {
+            if self.kept[j] || !self.bank.active[j] {
                 continue;
             }
             let extends = self.extends_base(j);
-            let (base, rest) = self.bank.split_at_mut(1);
+            let (base, rest) = self.bank.filters.split_at_mut(1);
             let f = &mut rest[j - 1];
             f.x.copy_from(&base[0].x);
             if extends {
@@ -591,7 +591,7 @@ impl Hybrid {
             return 0.0;
         }
         let (ln_healthy, ln_w) = ((1.0 - w).ln(), w.ln());
-        let f = &self.bank[j];
+        let f = &self.bank.filters[j];
         let mut total = 0.0;
         for c in 0..self.layout.len() {
             let r = self.variances[c];
@@ -662,78 +662,40 @@ impl Hybrid {
             for j in 0..h {
                 self.hypothesis_variances(j, input);
                 let v = self.variances.clone();
-                self.bank[j].initialise(input.readings, &v);
+                self.bank.filters[j].initialise(input.readings, &v);
             }
             self.initialised = true;
         } else {
-            // The model's acceleration at the most probable hypothesis' estimate (which uses the
+            // The model's transition at the most probable hypothesis' estimate (which uses the
             // model; the u-AIC's belief has only the acceleration-bound prior, and without a
             // tachometer its velocity can be off by 0.1 rad/s, which on a damped arm is a wrong
-            // acceleration on every joint), and the per-joint process noise it implies. For the
-            // first `resync_ticks` the belief's instead: every hypothesis starts from one
-            // reading, and a failure hypothesis that leads for a tick would otherwise make the
-            // model predict from its own estimate and stay ahead (start-up false alarms).
+            // acceleration on every joint). For the first `resync_ticks` the belief's instead:
+            // every hypothesis starts from one reading, and a failure hypothesis that leads for
+            // a tick would otherwise make the model predict from its own estimate and stay
+            // ahead (start-up false alarms).
             let x = if self.ticks < self.config.resync_ticks {
                 self.uaic.belief()
             } else {
-                self.bank[self.winner].x.as_slice()
+                self.bank.filters[self.winner].x.as_slice()
             };
-            let (acc, noise) = match self
-                .model
-                .as_mut()
-                .and_then(|m| m.at(x, input.applied_torques))
-            {
-                Some((acc, noise)) => (Some(acc), Some(noise)),
-                None => (None, None),
-            };
-            for (f, _) in self.bank.iter_mut().zip(&self.active).filter(|(_, a)| **a) {
-                f.predict_with_noise(acc, noise);
-            }
-            // The switching prior: stay with 1 - s, leave to each other active hypothesis with
-            // s/(m-1).
-            let s = self.config.switch;
-            let m = self.active.iter().filter(|&&a| a).count();
-            let leave = s / (m - 1) as f64;
-            let total: f64 = self.probability.iter().sum();
-            for (p, _) in self
-                .probability
-                .iter_mut()
-                .zip(&self.active)
-                .filter(|(_, a)| **a)
-            {
-                *p = (1.0 - s) * *p + leave * (total - *p);
-            }
+            let transition = self.model.evaluate(x, input.applied_torques);
+            self.bank.predict(&transition, |_| 1.0);
+            self.bank.switch(self.config.switch);
         }
-        let mut ll = std::mem::take(&mut self.ll);
-        linearise_bank(&mut self.bank, Some(&self.active));
+        self.bank.linearise();
         for j in 0..h {
-            if self.active[j] {
+            if self.bank.active[j] {
                 self.hypothesis_variances(j, input);
                 let stuck = self.stuck_evidence(j, input);
-                ll[j] = self.bank[j].update(input.readings, &self.variances) + stuck;
+                self.bank.log_evidence[j] =
+                    self.bank.filters[j].update(input.readings, &self.variances) + stuck;
             } else {
-                ll[j] = f64::NEG_INFINITY;
+                self.bank.log_evidence[j] = f64::NEG_INFINITY;
             }
         }
         self.last.copy_from_slice(&input.readings.values);
         self.ticks += 1;
-        let best = ll.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-        let mut total = 0.0;
-        for j in 0..h {
-            if self.active[j] {
-                self.probability[j] *= (ll[j] - best).exp();
-                total += self.probability[j];
-            }
-        }
-        for (p, _) in self
-            .probability
-            .iter_mut()
-            .zip(&self.active)
-            .filter(|(_, a)| **a)
-        {
-            *p = (*p / total).max(1e-300);
-        }
-        self.ll = ll;
+        self.bank.weigh(FLOOR);
     }
 }
 
@@ -744,9 +706,7 @@ impl Estimator for Hybrid {
         // hypothesis; while it is the propagated prior, a channel's precision is nominal x
         // P(healthy) without the floor: the propagated prior's velocity belief is loose enough
         // that a frozen tachometer at the floor precision would bias mu'.
-        let winner = (0..self.bank.len())
-            .max_by(|&a, &b| self.probability[a].total_cmp(&self.probability[b]))
-            .unwrap_or(0);
+        let winner = self.bank.most_probable();
         let mut floor = self.floor;
         if self.config.prior == HybridPrior::FixedUntilTachometerFails {
             let tachometer_failed = self
@@ -771,8 +731,8 @@ impl Estimator for Hybrid {
                 _ if input.precisions[c] <= 0.0 => 0.0,
                 _ => {
                     let failed: f64 = (0..self.bank.len())
-                        .filter(|&j| self.active[j] && self.holds_failed(j, key))
-                        .map(|j| self.probability[j])
+                        .filter(|&j| self.bank.active[j] && self.holds_failed(j, key))
+                        .map(|j| self.bank.probability[j])
                         .sum();
                     self.nominal[c] * (1.0 - failed).max(floor)
                 }
@@ -792,7 +752,7 @@ impl Estimator for Hybrid {
                 && self.distrusts_more(winner, self.winner)
                 && self.outside(winner)
             {
-                let f = &self.bank[winner];
+                let f = &self.bank.filters[winner];
                 self.uaic.reanchor(f.x.as_slice(), Some(&f.p));
             }
             self.winner = winner;
@@ -820,56 +780,58 @@ impl Estimator for Hybrid {
     }
 }
 
-/// Builds the hybrid's parts from the scenario's settings.
+/// Builds the hybrid's parts from the scenario's settings: the bank's transition is the arm's
+/// dynamics on `model` (the estimator's copy, masses scaled by `mass_scale`) with the model's
+/// process noise, or constant velocity at the acceleration bound.
 #[allow(clippy::too_many_arguments)]
 pub fn build(
     uaic: Uaic,
-    layout: ChannelLayout,
-    gp: Arc<GpModel>,
+    observation: Arc<dyn ObservationModel>,
     dt: f64,
     acceleration_bound: f64,
-    model: &crate::plant::ArmModel,
+    model: &crate::arm::ArmModel,
     gravity: [f64; 3],
     config: &HybridConfig,
     nominal: &[f64],
     floor: f64,
 ) -> Hybrid {
-    let (dynamics, noise) = match config.bank_model {
-        BankModel::ConstantVelocity => (None, acceleration_bound),
-        BankModel::Dynamics => (
-            Some(ModelPrediction::new(
-                model,
-                gravity,
-                config.mass_scale,
-                config.model_acceleration_noise,
-                config.model_relative_error,
-            )),
+    let n = model.joints.len();
+    let transition: Box<dyn TransitionModel> = match config.bank_model {
+        BankModel::ConstantVelocity => Box::new(ConstantVelocity::new(n, acceleration_bound)),
+        BankModel::Dynamics => Box::new(ArmTransition::new(
+            Arc::new(super::kalman::scaled_masses(model, config.mass_scale)),
+            gravity,
             config.model_acceleration_noise,
-        ),
+            config.model_relative_error,
+            config.model_acceleration_noise,
+        )),
     };
-    let ekf = Ekf::new(layout, gp, dt, noise);
-    Hybrid::new(uaic, ekf, dynamics, config.clone(), nominal, floor)
+    let ekf = Ekf::new(observation, dt);
+    Hybrid::new(uaic, ekf, transition, config.clone(), nominal, floor)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::estimation::uaic::UaicConfig;
+    use crate::gp::GpModel;
     use crate::sensors::{CameraModel, Readings};
 
     fn toy_hybrid() -> Hybrid {
         let layout = ChannelLayout::new(2, CameraModel::Pinhole);
-        let gp = Arc::new(GpModel::toy());
-        let uaic = Uaic::new(UaicConfig::default(), layout, gp.clone(), 1e-3);
-        let ekf = Ekf::new(layout, gp, 1e-3, 2.0);
+        let observation =
+            crate::estimation::models::GpCamera::shared(layout, Arc::new(GpModel::toy()));
+        let uaic = Uaic::new(UaicConfig::default(), observation.clone(), 1e-3);
+        let ekf = Ekf::new(observation, 1e-3);
         let nominal = [1e6, 1e6, 1e6, 1e6, 1e4, 1e4];
-        Hybrid::new(uaic, ekf, None, HybridConfig::default(), &nominal, 1e-6)
+        let cv = Box::new(ConstantVelocity::new(2, 2.0));
+        Hybrid::new(uaic, ekf, cv, HybridConfig::default(), &nominal, 1e-6)
     }
 
     /// The failed sets of the active hypotheses, as (slot, channel list).
     fn sets(h: &Hybrid) -> Vec<(usize, Vec<usize>)> {
         (0..h.bank.len())
-            .filter(|&j| h.active[j])
+            .filter(|&j| h.bank.active[j])
             .map(|j| (j, (0..6).filter(|&k| h.holds_failed(j, k)).collect()))
             .collect()
     }
@@ -890,9 +852,9 @@ mod tests {
                 (5, vec![4])
             ]
         );
-        h.bank[3].x[0] = 0.25;
-        h.bank[2].x[0] = 0.5;
-        h.probability = vec![0.1, 0.0, 0.0, 0.9, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+        h.bank.filters[3].x[0] = 0.25;
+        h.bank.filters[2].x[0] = 0.5;
+        h.bank.probability = vec![0.1, 0.0, 0.0, 0.9, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
         h.rebase(3);
         // tach1 failed is the base; its toggle asks whether tach1 came back; the other toggles
         // add a second failure (restarted from the base); the swaps (tach1 was the wrong blame)
@@ -913,13 +875,19 @@ mod tests {
             ]
         );
         assert_eq!(h.failed_channels().collect::<Vec<_>>(), vec![2]);
-        assert_eq!(h.bank[0].x[0], 0.25, "the winner's filter is the base");
         assert_eq!(
-            h.bank[7].x[0], 0.5,
+            h.bank.filters[0].x[0], 0.25,
+            "the winner's filter is the base"
+        );
+        assert_eq!(
+            h.bank.filters[7].x[0], 0.5,
             "the old enc2 hypothesis is the enc2 swap"
         );
         for j in [1, 2, 4, 5] {
-            assert_eq!(h.bank[j].x[0], 0.25, "slot {j} restarts from the base");
+            assert_eq!(
+                h.bank.filters[j].x[0], 0.25,
+                "slot {j} restarts from the base"
+            );
         }
         // The winner's probability moves to slot 0 and the old base's to the tach1 toggle; the
         // old one-failure hypotheses keep theirs, the new two-failure ones start at the
@@ -927,18 +895,18 @@ mod tests {
         let floor = h.config.switch / 9.0;
         let total = 1.0 + 4.0 * floor;
         let close = |a: f64, b: f64| (a - b).abs() <= 1e-15 * b;
-        assert!(close(h.probability[0], 0.9 / total));
-        assert!(close(h.probability[3], 0.1 / total));
-        assert!(close(h.probability[1], floor / total));
-        assert_eq!(h.probability[8], 0.0);
+        assert!(close(h.bank.probability[0], 0.9 / total));
+        assert!(close(h.bank.probability[3], 0.1 / total));
+        assert!(close(h.bank.probability[1], floor / total));
+        assert_eq!(h.bank.probability[8], 0.0);
         // A swap: encoder 1, not tachometer 1, failed. The old base becomes the tach1 swap.
         h.rebase(6);
         assert_eq!(h.failed_channels().collect::<Vec<_>>(), vec![0]);
         assert_eq!(
-            h.bank[8].x[0], 0.25,
+            h.bank.filters[8].x[0], 0.25,
             "the old base is the swap back to tach1"
         );
-        assert!(!h.active[6] && h.active[8]);
+        assert!(!h.bank.active[6] && h.bank.active[8]);
         // A second failure on top (the camera), then the end of the first: the sets stay the
         // base, its toggles and the swaps of its last failure.
         h.rebase(5);
@@ -960,7 +928,7 @@ mod tests {
                 (9, vec![3])
             ]
         );
-        let total: f64 = h.probability.iter().sum();
+        let total: f64 = h.bank.probability.iter().sum();
         assert!((total - 1.0).abs() < 1e-12);
     }
 
@@ -970,23 +938,29 @@ mod tests {
     #[test]
     fn a_resync_keeps_the_favoured_swaps_and_restarts_the_rest() {
         let mut h = toy_hybrid();
-        h.probability = vec![0.1, 0.0, 0.0, 0.9, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+        h.bank.probability = vec![0.1, 0.0, 0.0, 0.9, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
         h.rebase(3);
         // The base holds tach1 (channel 2) failed; slot 7 is "enc2 failed instead", slot 9
         // "tach2 failed instead", slot 2 the toggle "enc2 failed too".
-        h.bank[0].x[0] = 0.25;
+        h.bank.filters[0].x[0] = 0.25;
         for j in [2, 7, 9] {
-            h.bank[j].x[0] = 0.5;
+            h.bank.filters[j].x[0] = 0.5;
         }
         let floor = h.config.switch / 9.0;
-        h.probability[7] = 100.0 * floor;
-        h.probability[2] = 100.0 * floor;
-        h.probability[9] = floor;
+        h.bank.probability[7] = 100.0 * floor;
+        h.bank.probability[2] = 100.0 * floor;
+        h.bank.probability[9] = floor;
         h.resync();
-        assert_eq!(h.bank[7].x[0], 0.5, "a favoured swap keeps its state");
-        assert_eq!(h.bank[2].x[0], 0.25, "a toggle restarts, favoured or not");
         assert_eq!(
-            h.bank[9].x[0], 0.25,
+            h.bank.filters[7].x[0], 0.5,
+            "a favoured swap keeps its state"
+        );
+        assert_eq!(
+            h.bank.filters[2].x[0], 0.25,
+            "a toggle restarts, favoured or not"
+        );
+        assert_eq!(
+            h.bank.filters[9].x[0], 0.25,
             "a swap the data do not favour restarts"
         );
     }
@@ -1001,7 +975,7 @@ mod tests {
         // Slots 0 (nothing failed) and 3 (tach1 failed).
         assert!(h.distrusts_more(3, 0));
         assert!(!h.distrusts_more(0, 3));
-        h.probability = vec![0.1, 0.0, 0.0, 0.9, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+        h.bank.probability = vec![0.1, 0.0, 0.0, 0.9, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
         h.rebase(3);
         // Base {tach1}; slot 3 is "tach1 came back", slot 6 "enc1 instead of tach1", slot 1
         // "enc1 failed too".
@@ -1035,10 +1009,10 @@ mod tests {
             precisions: &precisions,
             applied_torques: &[0.0, 0.0],
         };
-        for f in &mut h.bank {
+        for f in &mut h.bank.filters {
             f.initialise(&readings, &[1e-6, 1e-6, 1e-6, 1e-6, 1e-4, 1e-4]);
         }
-        linearise_bank(&mut h.bank, Some(&h.active));
+        h.bank.linearise();
         // Slot 3 holds tachometer 1 (channel 2) failed; slot 0 trusts it.
         h.hypothesis_variances(3, &input);
         assert_eq!(h.stuck_evidence(3, &input), 0.0, "no last reading yet");
@@ -1048,7 +1022,7 @@ mod tests {
             let gauss = |x: f64, m: f64, v: f64| {
                 (-(x - m) * (x - m) / (2.0 * v)).exp() / (2.0 * std::f64::consts::PI * v).sqrt()
             };
-            let f = &h.bank[3];
+            let f = &h.bank.filters[3];
             let s = f.projected_variance(2) + h.variances[2];
             let width = (h.config.stuck_width * sigma).powi(2);
             ((1.0 - w) + w * gauss(y, last, width) / gauss(y, f.predicted(2), s)).ln()

@@ -12,22 +12,27 @@
 
 use nalgebra::{DMatrix, DVector};
 
-use super::kalman::{Ekf, KalmanConfig, ModelPrediction, linearise_bank};
+use super::bank::{Floor, HypothesisBank};
+use super::kalman::{Ekf, KalmanConfig};
+use super::models::TransitionModel;
 use super::{Estimate, Estimator, EstimatorInput};
+
+/// The IMM's probability floor: 1e-12, renormalised, so that a hypothesis is never lost to
+/// rounding and the probabilities stay a distribution (Blom and Bar-Shalom 1988).
+const FLOOR: Floor = Floor {
+    value: 1e-12,
+    renormalise: true,
+};
 
 /// The multiple-model estimator.
 pub struct Imm {
-    filters: Vec<Ekf>,
+    bank: HypothesisBank,
     /// Per hypothesis: each channel's noise variance (infinite: left out by the caller).
     variances: Vec<Vec<f64>>,
-    probability: Vec<f64>,
     switch: f64,
-    model: Option<ModelPrediction>,
-    /// The manoeuvre hypothesis' index and its noise multiple (with the arm model, each joint's
-    /// process noise is scaled by it).
+    model: Box<dyn TransitionModel>,
+    /// The manoeuvre hypothesis' index and its process-noise multiple.
     manoeuvre: Option<(usize, f64)>,
-    /// Scratch: the manoeuvre hypothesis' process noise.
-    manoeuvre_noise: Vec<f64>,
     nominal: Vec<f64>,
     x: DVector<f64>,
     p: DMatrix<f64>,
@@ -42,15 +47,14 @@ pub struct Imm {
     /// The mixture as a filter, for the posterior residuals.
     combined: Ekf,
     scratch: Vec<f64>,
-    log_like: Vec<f64>,
 }
 
 impl Imm {
-    /// A bank built from `template` (an EKF with the model's noise), one hypothesis per channel.
+    /// A bank built from `template`, one hypothesis per channel, predicting with `model`.
     pub fn new(
         template: Ekf,
         config: &KalmanConfig,
-        model: Option<ModelPrediction>,
+        model: Box<dyn TransitionModel>,
         nominal: &[f64],
     ) -> Self {
         let m = nominal.len();
@@ -63,11 +67,8 @@ impl Imm {
             v[c] *= config.imm_broad * config.imm_broad;
             variances.push(v);
         }
-        let mut filters = vec![template.clone(); hypotheses];
         if manoeuvre {
             variances.push(base.clone());
-            let s = template.acceleration_noise() * config.imm_manoeuvre;
-            filters[m + 1].set_acceleration_noise(s);
         }
         let mut probability = vec![(1e-3) / (hypotheses - 1) as f64; hypotheses];
         probability[0] = 1.0 - 1e-3;
@@ -78,14 +79,11 @@ impl Imm {
         Self {
             combined: template.clone(),
             scratch: vec![0.0; m],
-            log_like: vec![0.0; hypotheses],
-            filters,
+            bank: HypothesisBank::new(template, probability, hypotheses),
             variances,
-            probability,
             switch: config.imm_switch,
             model,
             manoeuvre: manoeuvre.then_some((m + 1, config.imm_manoeuvre)),
-            manoeuvre_noise: vec![0.0; n],
             nominal: nominal.to_vec(),
             x: DVector::zeros(d),
             p: DMatrix::zeros(d, d),
@@ -100,49 +98,31 @@ impl Imm {
         }
     }
 
-    /// Predicts every hypothesis one tick: with the arm model, one model acceleration and
-    /// process noise at the combined belief (the manoeuvre hypothesis' noise scaled by its
-    /// multiple); without one, or where the model is singular, at constant velocity.
+    /// Predicts every hypothesis one tick with one evaluation of the transition model at the
+    /// combined belief, the manoeuvre hypothesis' process noise scaled by its multiple.
     fn predict_bank(&mut self, torques: &[f64]) {
-        match self
-            .model
-            .as_mut()
-            .and_then(|m| m.at(self.x.as_slice(), torques))
-        {
-            Some((acc, noise)) => {
-                for (j, f) in self.filters.iter_mut().enumerate() {
-                    match self.manoeuvre {
-                        Some((k, scale)) if k == j => {
-                            for (s, v) in self.manoeuvre_noise.iter_mut().zip(noise) {
-                                *s = scale * v;
-                            }
-                            f.predict_with_noise(Some(acc), Some(&self.manoeuvre_noise));
-                        }
-                        _ => f.predict_with_noise(Some(acc), Some(noise)),
-                    }
-                }
-            }
-            None => {
-                for f in &mut self.filters {
-                    f.predict(None);
-                }
-            }
-        }
+        let transition = self.model.evaluate(self.x.as_slice(), torques);
+        let manoeuvre = self.manoeuvre;
+        self.bank.predict(&transition, |j| match manoeuvre {
+            Some((k, scale)) if k == j => scale,
+            _ => 1.0,
+        });
     }
 
     /// Each hypothesis' probability: H_0 first, then one per channel.
     pub fn probabilities(&self) -> &[f64] {
-        &self.probability
+        &self.bank.probability
     }
 
     /// The hypotheses' mixture of means and covariances into (x, p).
     fn combine(&mut self) {
+        let bank = &self.bank;
         self.x.fill(0.0);
-        for (f, w) in self.filters.iter().zip(&self.probability) {
+        for (f, w) in bank.filters.iter().zip(&bank.probability) {
             self.x.axpy(*w, &f.x, 1.0);
         }
         self.p.fill(0.0);
-        for (f, w) in self.filters.iter().zip(&self.probability) {
+        for (f, w) in bank.filters.iter().zip(&bank.probability) {
             add_spread(&mut self.p, *w, &f.p, &f.x, &self.x);
         }
     }
@@ -171,14 +151,14 @@ fn add_spread(
 
 impl Estimator for Imm {
     fn update(&mut self, input: &EstimatorInput<'_>) -> &Estimate {
-        let h = self.filters.len();
+        let h = self.bank.len();
         let m = self.nominal.len();
         // Channels the caller leaves out (precision 0) are left out of every hypothesis.
         let precisions = input.precisions;
         let off = |c: usize| precisions[c] <= 0.0;
         let variance = |hyp: &[f64], c: usize| if off(c) { f64::INFINITY } else { hyp[c] };
         if !self.initialised {
-            for (f, v) in self.filters.iter_mut().zip(&self.variances) {
+            for (f, v) in self.bank.filters.iter_mut().zip(&self.variances) {
                 let vv: Vec<f64> = (0..m).map(|c| variance(v, c)).collect();
                 f.initialise(input.readings, &vv);
             }
@@ -188,68 +168,55 @@ impl Estimator for Imm {
             let stay = 1.0 - self.switch;
             let leave = self.switch / (h - 1) as f64;
             let pi = |i: usize, j: usize| if i == j { stay } else { leave };
+            let bank = &mut self.bank;
             for j in 0..h {
-                let cj: f64 = (0..h).map(|i| pi(i, j) * self.probability[i]).sum();
+                let cj: f64 = (0..h).map(|i| pi(i, j) * bank.probability[i]).sum();
                 // Weights below 1e-15 move the mixture by less than rounding: skipped.
                 self.mixed_x[j].fill(0.0);
                 for i in 0..h {
-                    let w = pi(i, j) * self.probability[i] / cj;
+                    let w = pi(i, j) * bank.probability[i] / cj;
                     if w >= MIX_FLOOR {
-                        self.mixed_x[j].axpy(w, &self.filters[i].x, 1.0);
+                        self.mixed_x[j].axpy(w, &bank.filters[i].x, 1.0);
                     }
                 }
                 self.mixed_p[j].fill(0.0);
                 for i in 0..h {
-                    let w = pi(i, j) * self.probability[i] / cj;
+                    let w = pi(i, j) * bank.probability[i] / cj;
                     if w >= MIX_FLOOR {
-                        let f = &self.filters[i];
+                        let f = &bank.filters[i];
                         add_spread(&mut self.mixed_p[j], w, &f.p, &f.x, &self.mixed_x[j]);
                     }
                 }
             }
             for j in 0..h {
-                self.filters[j].x.copy_from(&self.mixed_x[j]);
-                self.filters[j].p.copy_from(&self.mixed_p[j]);
+                bank.filters[j].x.copy_from(&self.mixed_x[j]);
+                bank.filters[j].p.copy_from(&self.mixed_p[j]);
             }
             // With a symmetric switching matrix, sum_i pi_ij p_i = stay p_j + leave (1 - p_j).
-            let total: f64 = self.probability.iter().sum();
-            for p in &mut self.probability {
-                *p = stay * *p + leave * (total - *p);
-            }
+            bank.switch(self.switch);
             self.predict_bank(input.applied_torques);
         }
-        linearise_bank(&mut self.filters, None);
-        for (j, f) in self.filters.iter_mut().enumerate() {
+        self.bank.linearise();
+        let bank = &mut self.bank;
+        for (j, f) in bank.filters.iter_mut().enumerate() {
             for c in 0..m {
                 self.scratch[c] = variance(&self.variances[j], c);
             }
             if j == 0 {
                 f.record_innovations(input.readings, &self.scratch);
             }
-            self.log_like[j] = f.update(input.readings, &self.scratch);
+            bank.log_evidence[j] = f.update(input.readings, &self.scratch);
         }
-        let log_like = &self.log_like;
-        let best = log_like.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-        let mut total = 0.0;
-        for j in 0..h {
-            self.probability[j] *= (log_like[j] - best).exp();
-            total += self.probability[j];
-        }
-        for p in &mut self.probability {
-            *p = (*p / total).max(1e-12);
-        }
-        let sum: f64 = self.probability.iter().sum();
-        for p in &mut self.probability {
-            *p /= sum;
-        }
+        let best = bank.best_log_evidence();
+        let total = bank.weigh(FLOOR);
         self.combine();
         // Report: innovations of H_0's prediction; residuals at the combined belief.
         self.report
             .innovations
-            .clone_from(&self.filters[0].innovation);
+            .clone_from(&self.bank.filters[0].innovation);
         self.report
             .innovation_variances
-            .clone_from(&self.filters[0].innovation_variance);
+            .clone_from(&self.bank.filters[0].innovation_variance);
         self.combined.x.copy_from(&self.x);
         self.combined.p.copy_from(&self.p);
         self.combined.linearise();
@@ -259,7 +226,7 @@ impl Estimator for Imm {
             self.used[c] = if off(c) {
                 0.0
             } else {
-                self.nominal[c] * (1.0 - self.probability[c + 1])
+                self.nominal[c] * (1.0 - self.bank.probability[c + 1])
             };
         }
         self.report.precisions_used.copy_from_slice(&self.used);
@@ -303,7 +270,7 @@ mod tests {
     #[test]
     fn the_bank_predicts_with_the_arm_model_and_scales_the_manoeuvre_noise() {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("urdf/planar_2dof.urdf");
-        let model = crate::plant::load_urdf(&path).unwrap();
+        let model = crate::arm::load_urdf(&path).unwrap();
         let g = [0.0, 0.0, -9.81];
         let config = KalmanConfig {
             process_model: ProcessModel::Dynamics,
@@ -311,23 +278,28 @@ mod tests {
         };
         let layout = ChannelLayout::new(2, CameraModel::Pinhole);
         let dt = 1e-3;
-        let template = Ekf::new(layout, Arc::new(crate::gp::GpModel::toy()), dt, 200.0);
+        let observation = crate::estimation::models::GpCamera::shared(
+            layout,
+            Arc::new(crate::gp::GpModel::toy()),
+        );
+        let template = Ekf::new(observation, dt);
         let nominal = vec![1e6; layout.len()];
-        let prediction = ModelPrediction::from_config(&config, &model, g);
+        let prediction = crate::estimation::kalman::transition_model(&config, &model, g, 200.0);
         let mut imm = Imm::new(template, &config, prediction, &nominal);
         let x = [0.3, -0.7, 0.5, -1.0];
         let u = [40.0, -3.0];
         imm.x.copy_from_slice(&x);
-        for f in &mut imm.filters {
+        for f in &mut imm.bank.filters {
             f.x.copy_from_slice(&x);
             f.p.fill_with_identity();
         }
         imm.predict_bank(&u);
-        let mut direct = crate::estimation::kalman::ArmDynamics::new(&model, g, 1.0);
-        let acc = direct.acceleration(&x[..2], &x[2..], &u).unwrap().to_vec();
+        let mut direct = crate::arm::Dynamics::new(Arc::new(model), g);
+        let mut acc = vec![0.0; 2];
+        assert!(direct.forward_dynamics(&x[..2], &x[2..], &u, &mut acc));
         let (k, scale) = imm.manoeuvre.expect("a manoeuvre hypothesis by default");
-        assert_eq!(k, imm.filters.len() - 1);
-        for (j, f) in imm.filters.iter().enumerate() {
+        assert_eq!(k, imm.bank.len() - 1);
+        for (j, f) in imm.bank.filters.iter().enumerate() {
             for i in 0..2 {
                 let v = x[2 + i] + dt * acc[i];
                 assert!(

@@ -17,9 +17,11 @@ use std::sync::Arc;
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
+use super::models::{
+    ArmTransition, ConstantVelocity, ObservationModel, Transition, TransitionModel,
+};
 use super::{Estimate, Estimator, EstimatorInput};
-use crate::gp::GpModel;
-use crate::plant::{ArmModel, Chain};
+use crate::arm::ArmModel;
 use crate::sensors::{Channel, ChannelLayout, Readings};
 
 /// Settings of the Kalman-filter baselines (the `[kalman]` section).
@@ -171,108 +173,46 @@ pub fn validate_model_error(
     Ok(())
 }
 
-/// The arm's dynamics as a prediction model (a copy of the URDF's model, possibly with its
-/// masses scaled: the model error a user would have).
-pub struct ArmDynamics {
-    chain: Chain,
-    gravity: nalgebra::Vector3<f64>,
-    acc: Vec<f64>,
-    damping: Vec<f64>,
-}
-
-impl ArmDynamics {
-    /// The dynamics of `model` with every body's mass and inertia scaled by `mass_scale`.
-    pub fn new(model: &ArmModel, gravity: [f64; 3], mass_scale: f64) -> Self {
-        let mut m = model.clone();
-        for b in &mut m.bodies {
-            b.mass *= mass_scale;
-            b.inertia *= mass_scale;
-        }
-        let n = m.joints.len();
-        Self {
-            damping: m.joints.iter().map(|j| j.damping).collect(),
-            chain: Chain::new(&m),
-            gravity: nalgebra::Vector3::from(gravity),
-            acc: vec![0.0; n],
-        }
-    }
-
-    /// qdd at (q, qd) under torques u; None if the mass matrix is singular.
-    pub fn acceleration(&mut self, q: &[f64], qd: &[f64], u: &[f64]) -> Option<&[f64]> {
-        self.chain.set_state(q, qd);
-        self.chain
-            .forward_dynamics(u, &self.gravity, &mut self.acc)
-            .then_some(&self.acc)
-    }
-
-    pub fn damping(&self) -> &[f64] {
-        &self.damping
+/// The transition model `config` asks for: the arm's dynamics on `model` (the estimator's copy
+/// of the arm, masses scaled by `mass_scale`) with the model's process noise, or constant
+/// velocity with `acceleration_noise` (also the dynamics' fallback where its mass matrix is
+/// singular).
+pub fn transition_model(
+    config: &KalmanConfig,
+    model: &ArmModel,
+    gravity: [f64; 3],
+    acceleration_noise: f64,
+) -> Box<dyn TransitionModel> {
+    let n = model.joints.len();
+    match config.process_model {
+        ProcessModel::ConstantVelocity => Box::new(ConstantVelocity::new(n, acceleration_noise)),
+        ProcessModel::Dynamics => Box::new(ArmTransition::new(
+            Arc::new(scaled_masses(model, config.mass_scale)),
+            gravity,
+            config.model_acceleration_noise,
+            config.model_relative_error,
+            acceleration_noise,
+        )),
     }
 }
 
-/// A model-based prediction: the arm's acceleration under the applied torques and each joint's
-/// process noise max(floor, relative x |qdd|). The hybrid's bank predicts with it, and the
-/// classical filters with `kalman.process_model = "dynamics"` (docs/method.md, "Classical
-/// baselines").
-pub struct ModelPrediction {
-    dynamics: ArmDynamics,
-    floor: f64,
-    relative: f64,
-    noise: Vec<f64>,
+/// `model` with every body's mass and inertia scaled by `mass_scale`.
+pub fn scaled_masses(model: &ArmModel, mass_scale: f64) -> ArmModel {
+    let mut m = model.clone();
+    for b in &mut m.bodies {
+        b.mass *= mass_scale;
+        b.inertia *= mass_scale;
+    }
+    m
 }
 
-impl ModelPrediction {
-    /// The dynamics of `model` (masses scaled by `mass_scale`) with process noise
-    /// max(`floor`, `relative` x |qdd|) per joint.
-    pub fn new(
-        model: &ArmModel,
-        gravity: [f64; 3],
-        mass_scale: f64,
-        floor: f64,
-        relative: f64,
-    ) -> Self {
-        Self {
-            dynamics: ArmDynamics::new(model, gravity, mass_scale),
-            floor,
-            relative,
-            noise: vec![0.0; model.joints.len()],
-        }
-    }
-
-    /// The prediction `config` asks for on `model`, or None for constant velocity.
-    pub fn from_config(config: &KalmanConfig, model: &ArmModel, gravity: [f64; 3]) -> Option<Self> {
-        match config.process_model {
-            ProcessModel::ConstantVelocity => None,
-            ProcessModel::Dynamics => Some(Self::new(
-                model,
-                gravity,
-                config.mass_scale,
-                config.model_acceleration_noise,
-                config.model_relative_error,
-            )),
-        }
-    }
-
-    /// The model's acceleration at `x` = [q, qd] under `torques` and each joint's process noise
-    /// (rad/s^2); None if the mass matrix is singular there.
-    pub fn at(&mut self, x: &[f64], torques: &[f64]) -> Option<(&[f64], &[f64])> {
-        let n = self.noise.len();
-        let acc = self.dynamics.acceleration(&x[..n], &x[n..], torques)?;
-        for (s, a) in self.noise.iter_mut().zip(acc) {
-            *s = self.floor.max(self.relative * a.abs());
-        }
-        Some((acc, &self.noise))
-    }
-}
-
-/// The extended Kalman filter on [q, qd].
-#[derive(Clone, Debug)]
+/// The extended Kalman filter on [q, qd]: the one filter step (predict with a transition, update
+/// channel by channel with an observation model) every Kalman-type estimator here runs.
+#[derive(Clone)]
 pub struct Ekf {
     layout: ChannelLayout,
-    gp: Arc<GpModel>,
+    observation: Arc<dyn ObservationModel>,
     dt: f64,
-    /// Acceleration noise s_a (rad/s^2).
-    accel_noise: f64,
     pub x: DVector<f64>,
     pub p: DMatrix<f64>,
     initialised: bool,
@@ -288,14 +228,15 @@ pub struct Ekf {
 }
 
 impl Ekf {
-    pub fn new(layout: ChannelLayout, gp: Arc<GpModel>, dt: f64, accel_noise: f64) -> Self {
+    /// A filter on the channels of `observation`, ticking every `dt` seconds.
+    pub fn new(observation: Arc<dyn ObservationModel>, dt: f64) -> Self {
+        let layout = *observation.layout();
         let d = 2 * layout.n_joints();
         let r = layout.camera_outputs();
         Self {
             layout,
-            gp,
+            observation,
             dt,
-            accel_noise,
             x: DVector::zeros(d),
             p: DMatrix::zeros(d, d),
             initialised: false,
@@ -311,16 +252,6 @@ impl Ekf {
 
     pub fn n(&self) -> usize {
         self.layout.n_joints()
-    }
-
-    /// The acceleration noise s_a (rad/s^2) of the prediction.
-    pub fn acceleration_noise(&self) -> f64 {
-        self.accel_noise
-    }
-
-    /// Sets the acceleration noise s_a (rad/s^2) of the prediction.
-    pub fn set_acceleration_noise(&mut self, s: f64) {
-        self.accel_noise = s;
     }
 
     pub fn layout(&self) -> ChannelLayout {
@@ -353,17 +284,13 @@ impl Ekf {
         self.initialised = true;
     }
 
-    /// Prediction over one tick: constant velocity, or with the model's acceleration `acc`
-    /// (and its velocity damping `-dt M^-1 D` left out of the Jacobian: small at 1 ms).
-    pub fn predict(&mut self, acc: Option<&[f64]>) {
-        self.predict_with_noise(acc, None);
-    }
-
-    /// As [`Self::predict`], with each joint's acceleration noise given (rad/s^2; absent: the
-    /// filter's own).
-    pub fn predict_with_noise(&mut self, acc: Option<&[f64]>, noise: Option<&[f64]>) {
+    /// Prediction over one tick with a transition (its acceleration; none: constant velocity),
+    /// each joint's process noise its noise times `scale`; the model's velocity damping
+    /// `-dt M^-1 D` is left out of the Jacobian F = [[I, dt I], [0, I]] (small at 1 ms).
+    pub fn predict(&mut self, transition: &Transition<'_>, scale: f64) {
         let n = self.n();
         let dt = self.dt;
+        let acc = transition.acceleration;
         for i in 0..n {
             let a = acc.map_or(0.0, |a| a[i]);
             self.x_pred[i] = self.x[i] + dt * self.x[n + i] + 0.5 * dt * dt * a;
@@ -383,7 +310,7 @@ impl Ekf {
             }
         }
         for i in 0..n {
-            let s = noise.map_or(self.accel_noise, |v| v[i]);
+            let s = scale * transition.noise[i];
             let s2 = s * s;
             q[(i, i)] += s2 * dt.powi(4) / 4.0;
             q[(i, n + i)] += s2 * dt.powi(3) / 2.0;
@@ -397,8 +324,8 @@ impl Ekf {
     /// The GP at the current mean (the linearisation point of the camera channels).
     pub fn linearise(&mut self) {
         let n = self.n();
-        self.gp
-            .predict(&self.x.as_slice()[..n], &mut self.g, &mut self.jac);
+        self.observation
+            .camera(&self.x.as_slice()[..n], &mut self.g, &mut self.jac);
         self.x_pred.copy_from(&self.x);
     }
 
@@ -573,7 +500,7 @@ pub fn variances_of(precisions: &[f64], out: &mut [f64]) {
 pub struct EkfGate {
     ekf: Ekf,
     config: KalmanConfig,
-    model: Option<ModelPrediction>,
+    model: Box<dyn TransitionModel>,
     variances: Vec<f64>,
     used: Vec<f64>,
     beyond: Vec<u64>,
@@ -588,7 +515,7 @@ pub struct EkfGate {
 }
 
 impl EkfGate {
-    pub fn new(ekf: Ekf, config: KalmanConfig, model: Option<ModelPrediction>) -> Self {
+    pub fn new(ekf: Ekf, config: KalmanConfig, model: Box<dyn TransitionModel>) -> Self {
         let layout = ekf.layout;
         let m = layout.len();
         let n = layout.n_joints();
@@ -611,13 +538,10 @@ impl EkfGate {
     }
 }
 
-/// Predicts an EKF one tick with the arm model (its acceleration and process noise at the
-/// filter's mean), or at constant velocity without one or where the model is singular.
-fn predict_with(ekf: &mut Ekf, model: &mut Option<ModelPrediction>, torques: &[f64]) {
-    match model.as_mut().and_then(|m| m.at(ekf.x.as_slice(), torques)) {
-        Some((acc, noise)) => ekf.predict_with_noise(Some(acc), Some(noise)),
-        None => ekf.predict(None),
-    }
+/// Predicts an EKF one tick with its transition model evaluated at the filter's mean.
+fn predict_with(ekf: &mut Ekf, model: &mut dyn TransitionModel, torques: &[f64]) {
+    let transition = model.evaluate(ekf.x.as_slice(), torques);
+    ekf.predict(&transition, 1.0);
 }
 
 impl Estimator for EkfGate {
@@ -627,7 +551,7 @@ impl Estimator for EkfGate {
         if !self.ekf.initialised() {
             self.ekf.initialise(input.readings, &self.variances);
         } else {
-            predict_with(&mut self.ekf, &mut self.model, input.applied_torques);
+            predict_with(&mut self.ekf, self.model.as_mut(), input.applied_torques);
         }
         self.ekf.linearise();
         self.ekf.record_innovations(input.readings, &self.variances);
@@ -746,7 +670,7 @@ pub struct VbAkf {
     ekf: Ekf,
     rho: f64,
     iterations: usize,
-    model: Option<ModelPrediction>,
+    model: Box<dyn TransitionModel>,
     nominal: Vec<f64>,
     alpha: Vec<f64>,
     beta: Vec<f64>,
@@ -768,7 +692,7 @@ impl VbAkf {
     pub fn new(
         ekf: Ekf,
         config: &KalmanConfig,
-        model: Option<ModelPrediction>,
+        model: Box<dyn TransitionModel>,
         nominal: &[f64],
         min_ratio: f64,
     ) -> Self {
@@ -826,7 +750,7 @@ impl Estimator for VbAkf {
             self.fill_variances(input.precisions, &mut variances);
             self.ekf.initialise(input.readings, &variances);
         } else {
-            predict_with(&mut self.ekf, &mut self.model, input.applied_torques);
+            predict_with(&mut self.ekf, self.model.as_mut(), input.applied_torques);
         }
         // The noise parameters' prediction: forgetting spreads the posterior.
         for c in 0..m {
@@ -906,39 +830,45 @@ mod tests {
     use super::*;
     use crate::sensors::CameraModel;
     use rand::SeedableRng;
+
     use rand_distr::{Distribution, Normal};
 
-    fn toy_gp() -> Arc<GpModel> {
-        Arc::new(GpModel::toy())
+    fn toy_observation(layout: ChannelLayout) -> Arc<dyn ObservationModel> {
+        crate::estimation::models::GpCamera::shared(layout, Arc::new(crate::gp::GpModel::toy()))
     }
 
-    /// `kalman.process_model`: none for constant velocity; with the dynamics, the arm's own
-    /// acceleration and the process noise max(floor, relative |qdd|) per joint, and the EKF's
-    /// prediction x + dt v + dt^2 a / 2 with them.
+    /// `kalman.process_model`: constant velocity has no acceleration; with the dynamics, the
+    /// arm's own acceleration and the process noise max(floor, relative |qdd|) per joint, and
+    /// the EKF's prediction x + dt v + dt^2 a / 2 with them.
     #[test]
     fn the_dynamics_process_model_predicts_with_the_arms_acceleration() {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("urdf/planar_2dof.urdf");
-        let model = crate::plant::load_urdf(&path).unwrap();
+        let model = crate::arm::load_urdf(&path).unwrap();
         let g = [0.0, 0.0, -9.81];
         let mut config = KalmanConfig::default();
-        assert!(ModelPrediction::from_config(&config, &model, g).is_none());
-        config.process_model = ProcessModel::Dynamics;
-        let mut prediction = ModelPrediction::from_config(&config, &model, g).unwrap();
         let (q, qd, u) = ([0.3, -0.7], [0.5, -1.0], [40.0, -3.0]);
         let x = [q[0], q[1], qd[0], qd[1]];
-        let mut direct = ArmDynamics::new(&model, g, 1.0);
-        let expected = direct.acceleration(&q, &qd, &u).unwrap().to_vec();
-        let (acc, noise) = prediction.at(&x, &u).unwrap();
-        assert_eq!(acc, expected.as_slice());
-        for (s, a) in noise.iter().zip(&expected) {
+        assert!(
+            transition_model(&config, &model, g, 200.0)
+                .evaluate(&x, &u)
+                .acceleration
+                .is_none()
+        );
+        config.process_model = ProcessModel::Dynamics;
+        let mut prediction = transition_model(&config, &model, g, 200.0);
+        let mut direct = crate::arm::Dynamics::new(Arc::new(model.clone()), g);
+        let mut expected = vec![0.0; 2];
+        assert!(direct.forward_dynamics(&q, &qd, &u, &mut expected));
+        let t = prediction.evaluate(&x, &u);
+        assert_eq!(t.acceleration.unwrap(), expected.as_slice());
+        for (s, a) in t.noise.iter().zip(&expected) {
             assert_eq!(*s, f64::max(2.0, 0.1 * a.abs()));
         }
         assert!(expected.iter().any(|a| 0.1 * a.abs() > 2.0), "{expected:?}");
         let layout = ChannelLayout::new(2, CameraModel::Pinhole);
-        let mut ekf = Ekf::new(layout, toy_gp(), 1e-3, 200.0);
+        let mut ekf = Ekf::new(toy_observation(layout), 1e-3);
         ekf.x.copy_from_slice(&x);
-        let mut model = Some(prediction);
-        predict_with(&mut ekf, &mut model, &u);
+        predict_with(&mut ekf, prediction.as_mut(), &u);
         for i in 0..2 {
             let dt = 1e-3;
             let want = x[i] + dt * x[2 + i] + 0.5 * dt * dt * expected[i];
@@ -956,9 +886,10 @@ mod tests {
     #[test]
     fn innovation_covariance_matches_monte_carlo() {
         let layout = ChannelLayout::new(2, CameraModel::Pinhole);
-        let gp = toy_gp();
+        let gp = Arc::new(crate::gp::GpModel::toy());
         let dt = 1e-3;
         let s_a = 2.0;
+        let mut cv = ConstantVelocity::new(2, s_a);
         let var: [f64; 6] = [1e-6, 1e-6, 4e-6, 4e-6, 1e-4, 1e-4];
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
         let unit = Normal::new(0.0, 1.0).unwrap();
@@ -974,7 +905,7 @@ mod tests {
         for _ in 0..runs {
             let mut q = [0.1 * unit.sample(&mut rng), 0.1 * unit.sample(&mut rng)];
             let mut v = [0.0, 0.0];
-            let mut ekf = Ekf::new(layout, gp.clone(), dt, s_a);
+            let mut ekf = Ekf::new(toy_observation(layout), dt);
             let mut readings = Readings::missing(&layout);
             for k in 0..to {
                 if k > 0 {
@@ -998,7 +929,7 @@ mod tests {
                     }
                     continue;
                 }
-                ekf.predict(None);
+                ekf.predict(&cv.evaluate(&[], &[]), 1.0);
                 ekf.linearise();
                 ekf.record_innovations(&readings, &var);
                 if k >= from {
@@ -1045,13 +976,14 @@ mod tests {
     #[test]
     fn vb_akf_learns_a_channels_true_noise_variance() {
         let layout = ChannelLayout::new(2, CameraModel::Pinhole);
-        let gp = toy_gp();
+        let gp = Arc::new(crate::gp::GpModel::toy());
         let nominal_var: [f64; 6] = [1e-6, 1e-6, 1e-6, 1e-6, 1e-4, 1e-4];
         let mut true_var = nominal_var;
         true_var[0] *= 9.0;
         let nominal: Vec<f64> = nominal_var.iter().map(|v| 1.0 / v).collect();
-        let ekf = Ekf::new(layout, gp.clone(), 1e-3, 1e-3);
-        let mut vb = VbAkf::new(ekf, &KalmanConfig::default(), None, &nominal, 1e-6);
+        let ekf = Ekf::new(toy_observation(layout), 1e-3);
+        let cv = Box::new(ConstantVelocity::new(2, 1e-3));
+        let mut vb = VbAkf::new(ekf, &KalmanConfig::default(), cv, &nominal, 1e-6);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
         let unit = Normal::new(0.0, 1.0).unwrap();
         let q = [0.2, -0.3];

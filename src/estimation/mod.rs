@@ -8,14 +8,21 @@
 //! energy or log-likelihood where defined. The control law f* is not part of it
 //! ([`crate::control`]).
 //!
-//! Implementations: the u-AIC's free-energy descent ([`uaic::Uaic`]), and the classical
-//! baselines: an extended Kalman filter with innovation gating and the variational-Bayes
-//! adaptive filter ([`kalman`]), and an interacting-multiple-model bank ([`imm`]). A new
-//! estimator plugs in by implementing the trait; the runner does not change.
+//! Estimators are composed from models ([`models`]: a transition model, constant velocity or the
+//! arm's dynamics on the estimator's copy of the arm; an observation model, the channel layout
+//! with the GP camera). Implementations: the u-AIC's free-energy descent ([`uaic::Uaic`]), and
+//! the classical baselines: an extended Kalman filter with innovation gating and the
+//! variational-Bayes adaptive filter ([`kalman`], whose [`kalman::Ekf`] is the one filter step
+//! every Kalman-type estimator here runs), and an interacting-multiple-model bank ([`imm`]);
+//! the hybrid ([`hybrid`]) drives the u-AIC from a bank of failure hypotheses. The IMM and the
+//! hybrid share their bank's core ([`bank`]). A new estimator plugs in by implementing the
+//! trait; the runner does not change.
 
+pub mod bank;
 pub mod hybrid;
 pub mod imm;
 pub mod kalman;
+pub mod models;
 pub mod uaic;
 
 use nalgebra::DMatrix;

@@ -26,8 +26,8 @@ use std::sync::Arc;
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
+use super::models::ObservationModel;
 use super::{Estimate, Estimator, EstimatorInput};
-use crate::gp::GpModel;
 use crate::sensors::{Channel, ChannelLayout, Readings};
 
 /// How the belief descends the free energy each tick.
@@ -142,7 +142,8 @@ impl UaicConfig {
 pub struct Uaic {
     config: UaicConfig,
     layout: ChannelLayout,
-    gp: Arc<GpModel>,
+    /// What each channel reads at a state (the camera through its GP).
+    observation: Arc<dyn ObservationModel>,
     dt: f64,
     /// Belief x = [mu, mu'] and the previous tick's belief.
     x: DVector<f64>,
@@ -178,21 +179,15 @@ pub struct Uaic {
 }
 
 impl Uaic {
-    /// A u-AIC belief for `layout.n_joints()` joints at tick length `dt`, with the camera model
-    /// `gp`.
-    ///
-    /// # Panics
-    /// If the GP does not take one input per joint and give one output per camera output
-    /// (validate before).
-    pub fn new(config: UaicConfig, layout: ChannelLayout, gp: Arc<GpModel>, dt: f64) -> Self {
+    /// A u-AIC belief over the channels of `observation` at tick length `dt`.
+    pub fn new(config: UaicConfig, observation: Arc<dyn ObservationModel>, dt: f64) -> Self {
+        let layout = *observation.layout();
         let n = layout.n_joints();
         let r = layout.camera_outputs();
-        assert_eq!(gp.n_inputs, n, "the GP takes one input per joint");
-        assert_eq!(gp.n_outputs, r, "the GP gives one output per camera output");
         Self {
             config,
             layout,
-            gp,
+            observation,
             dt,
             x: DVector::zeros(2 * n),
             x_prev: DVector::zeros(2 * n),
@@ -417,7 +412,7 @@ impl Uaic {
         let n = self.layout.n_joints();
         let r = self.layout.camera_outputs();
         let (mut g, mut jac) = (vec![0.0; r], vec![0.0; r * n]);
-        self.gp.predict(&x[..n], &mut g, &mut jac);
+        self.observation.camera(&x[..n], &mut g, &mut jac);
         let xv = DVector::from_column_slice(x);
         let mut f = 0.0;
         let mut grad = vec![0.0; 2 * n];
@@ -475,8 +470,8 @@ impl Uaic {
             self.x_hat[n + i] = self.x[n + i];
         }
         let mut g = std::mem::take(&mut self.g_point);
-        self.gp
-            .predict(&self.x_hat.as_slice()[..n], &mut g, &mut self.jac);
+        self.observation
+            .camera(&self.x_hat.as_slice()[..n], &mut g, &mut self.jac);
         for c in 0..m {
             self.report.innovations[c] = readings
                 .get(c)
@@ -489,8 +484,8 @@ impl Uaic {
             UpdateScheme::GaussNewton => self.point.copy_from(&self.x_hat),
             UpdateScheme::Gradient => {
                 self.point.copy_from(&self.x);
-                self.gp
-                    .predict(&self.point.as_slice()[..n], &mut g, &mut self.jac);
+                self.observation
+                    .camera(&self.point.as_slice()[..n], &mut g, &mut self.jac);
             }
         }
         if self.config.prior == PriorMode::Propagated {

@@ -8,7 +8,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal, Uniform};
 
 use super::{FitOptions, FitReport, GpError, GpModel};
-use crate::plant::Arm;
+use crate::arm::{EndEffector, Kinematics};
 use crate::sensors::Camera;
 
 /// Stream ids of the GP's random draws (apart from the sensors' streams).
@@ -69,9 +69,10 @@ pub fn latin_hypercube(bounds: &[[f64; 2]], count: usize, rng: &mut ChaCha8Rng) 
 
 /// Draws `count` configurations in `bounds` (Latin hypercube) and reads the camera at each:
 /// the noise-free distorted image plus N(0, sigma^2) per coordinate. Configurations the camera
-/// cannot see are skipped (and counted). The arm's state is changed.
+/// cannot see are skipped (and counted). The arm is placed by the model's kinematics.
 pub fn sample_training_set(
-    arm: &mut Arm,
+    arm: &mut Kinematics,
+    ee: &EndEffector,
     camera: &Camera,
     bounds: &[[f64; 2]],
     count: usize,
@@ -82,7 +83,6 @@ pub fn sample_training_set(
     let mut noise = ChaCha8Rng::seed_from_u64(seed);
     noise.set_stream(NOISE_STREAM);
     let sigma = camera.config().sigma;
-    let zeros = vec![0.0; arm.n_joints()];
     let mut set = TrainingSet {
         inputs: Vec::with_capacity(count),
         outputs: Vec::with_capacity(count),
@@ -93,11 +93,11 @@ pub fn sample_training_set(
     let mut z = vec![0.0; camera.outputs()];
     let mut image = vec![0.0; camera.outputs()];
     for q in latin_hypercube(bounds, count, &mut lhs) {
-        arm.set_state(&q, &zeros);
+        arm.set(&q);
         for zr in z.iter_mut() {
             *zr = StandardNormal.sample(&mut noise);
         }
-        match camera.observe(arm, &mut image) {
+        match camera.observe(arm, ee, &mut image) {
             Ok(()) => {
                 set.inputs.push(q);
                 set.outputs
@@ -133,7 +133,8 @@ pub struct HeldOutError {
 /// Evaluates `model` on `count` uniform configurations inside its training box.
 pub fn evaluate_held_out(
     model: &GpModel,
-    arm: &mut Arm,
+    arm: &mut Kinematics,
+    ee: &EndEffector,
     camera: &Camera,
     count: usize,
     seed: u64,
@@ -141,7 +142,6 @@ pub fn evaluate_held_out(
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     rng.set_stream(HELD_OUT_STREAM);
     let unit = Uniform::new(0.0, 1.0).expect("valid range");
-    let zeros = vec![0.0; arm.n_joints()];
     let (mut sum2, mut max, mut points) = (0.0, 0.0f64, 0);
     let r = camera.outputs();
     let mut g = vec![0.0; r];
@@ -152,8 +152,8 @@ pub fn evaluate_held_out(
             .iter()
             .map(|[lo, hi]| lo + (hi - lo) * unit.sample(&mut rng))
             .collect();
-        arm.set_state(&q, &zeros);
-        if camera.observe(arm, &mut truth).is_err() {
+        arm.set(&q);
+        if camera.observe(arm, ee, &mut truth).is_err() {
             continue;
         }
         model.predict_mean(&q, &mut g);

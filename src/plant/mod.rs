@@ -1,69 +1,212 @@
-//! The plant: a URDF arm simulated in rapier with torque-driven joints.
+//! Plants: the simulated arm, the truth the sensors read and the torques act on.
 //!
-//! [`urdf`] turns a file into a validated, engine-independent [`ArmModel`]; [`Arm`] builds the
-//! rapier multibody from it and steps it. Nothing here knows about sensors or active inference.
+//! A [`Plant`] sets and reads the joint state, takes joint torques (clamped to the model's effort
+//! limits), steps, and reports every body's world pose. Two implementations over the same
+//! [`ArmModel`]: [`RapierPlant`] (rapier3d-f64's multibody, the default of `aift run`) and
+//! [`ArticulatedPlant`] (aift's own dynamics, [`crate::arm::dynamics`], integrated by hand: the
+//! campaigns' fast engine, cross-checked against rapier in `tests/engines.rs`). [`build`] makes
+//! the one the settings name; nothing outside this folder knows which it is, and no rapier type
+//! leaves it. Nothing here knows about sensors or active inference.
 
-mod arm;
-pub mod chain;
-mod error;
+mod articulated;
 mod open_loop;
-pub mod urdf;
+mod rapier;
 
-pub(crate) use arm::to_dvec;
-pub use arm::{Arm, ArmCollider, ArmOptions, Engine};
-pub use chain::{Chain, Integrator};
-pub use error::PlantError;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use nalgebra::Isometry3;
+use serde::{Deserialize, Serialize};
+
+pub use articulated::{ArticulatedPlant, ArticulatedSettings, Integrator, MAX_SUBSTEPS};
 pub use open_loop::{OpenLoopSample, open_loop_header, run_open_loop};
-pub use urdf::{
-    ArmModel, JointKind, UrdfOptions, load_urdf, load_urdf_with, parse_urdf, parse_urdf_with,
-};
+pub use rapier::{MAX_SOLVER_ITERATIONS, RapierPlant, RapierSettings};
 
-/// The arm as `aift check-urdf --json` prints it: joints (kind, parent and child links, axis,
-/// limits, effort, damping, friction), links (mass, the body they merge into), total mass, the
-/// end effector (`ee`, given or the link named `ee`) and the loader's warnings.
-pub fn describe_arm(
-    model: &ArmModel,
-    urdf: &std::path::Path,
-    ee: Option<&str>,
-) -> serde_json::Value {
-    let joints: Vec<_> = model
-        .joints
-        .iter()
-        .map(|j| {
-            let axis = j.axis.into_inner();
-            serde_json::json!({
-                "name": j.name,
-                "kind": j.kind.name(),
-                "parent": model.bodies[j.parent_body].link,
-                "child": model.bodies[j.child_body].link,
-                "axis": [axis.x, axis.y, axis.z],
-                "limits": j.limits.map(|(lo, hi)| [lo, hi]),
-                "effort": j.effort,
-                "damping": j.damping,
-                "friction": j.friction,
-            })
-        })
-        .collect();
-    let links: Vec<_> = model
-        .links
-        .iter()
-        .map(|l| {
-            serde_json::json!({
-                "name": l.name,
-                "mass": if l.has_inertial { Some(l.mass) } else { None },
-                "body": model.bodies[l.body].link,
-            })
-        })
-        .collect();
-    let ee = ee.or_else(|| model.link("ee").map(|_| "ee"));
-    serde_json::json!({
-        "format_version": 1,
-        "urdf": urdf,
-        "name": model.name,
-        "joints": joints,
-        "links": links,
-        "total_mass": model.total_mass(),
-        "end_effector": ee,
-        "warnings": model.warnings,
+use crate::arm::ArmModel;
+pub use crate::arm::kinematics::ArmPose;
+
+/// A simulated arm. Its [`ArmPose`] is the truth: the model it was built from and where its
+/// bodies are.
+pub trait Plant: ArmPose + Send {
+    /// Number of movable joints.
+    fn n_joints(&self) -> usize {
+        self.model().joints.len()
+    }
+
+    /// Sets the joint positions and velocities (one per joint).
+    ///
+    /// # Panics
+    /// If a slice has the wrong length.
+    fn set_state(&mut self, q: &[f64], qd: &[f64]);
+
+    /// Writes joint positions and velocities into the slices, without allocating.
+    fn read_state(&self, q: &mut [f64], qd: &mut [f64]);
+
+    /// Joint positions and velocities.
+    fn state(&self) -> (Vec<f64>, Vec<f64>) {
+        let n = self.n_joints();
+        let (mut q, mut qd) = (vec![0.0; n], vec![0.0; n]);
+        self.read_state(&mut q, &mut qd);
+        (q, qd)
+    }
+
+    /// Sets the joint torques (forces for prismatic joints) applied from the next step on,
+    /// clamped to each joint's URDF effort limit when it has one.
+    ///
+    /// # Panics
+    /// If `tau` does not have one entry per joint.
+    fn set_torques(&mut self, tau: &[f64]);
+
+    /// The torques that will be applied (after the effort clamp).
+    fn torques(&self) -> &[f64];
+
+    /// Advances the simulation by `dt` seconds with the current torques.
+    fn step(&mut self, dt: f64);
+
+    /// Every body's world pose, into `out` (one per body).
+    fn body_poses_into(&self, out: &mut [Isometry3<f64>]) {
+        for (b, pose) in out.iter_mut().enumerate() {
+            *pose = self.body_pose(b);
+        }
+    }
+}
+
+/// Which plant steps the arm.
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema,
+)]
+#[serde(rename_all = "kebab-case")]
+pub enum Engine {
+    /// rapier3d-f64's multibody (reduced coordinates), `[plant.rapier]`.
+    #[default]
+    Rapier,
+    /// aift's own articulated-body dynamics, `[plant.articulated]`: the same map as rapier with
+    /// the Euler integrator, or fourth-order Runge-Kutta.
+    Articulated,
+}
+
+impl Engine {
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Rapier => "rapier",
+            Self::Articulated => "articulated",
+        }
+    }
+}
+
+/// Settings of the plant (the scenario's `[plant]` section): which engine, and each engine's
+/// own settings (the other's are refused unless left at their defaults).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct PlantSettings {
+    /// `rapier` (default) or `articulated` (aift's own dynamics; docs/method.md, "Plant").
+    pub engine: Engine,
+    pub rapier: RapierSettings,
+    pub articulated: ArticulatedSettings,
+}
+
+impl PlantSettings {
+    pub fn validate(&self) -> Result<(), crate::SettingError> {
+        self.rapier.validate().map_err(|e| e.within("rapier"))?;
+        self.articulated
+            .validate()
+            .map_err(|e| e.within("articulated"))?;
+        match self.engine {
+            Engine::Rapier if self.articulated != ArticulatedSettings::default() => {
+                Err(crate::SettingError::new(
+                    "articulated",
+                    "applies to engine = \"articulated\" (rapier integrates its own way)",
+                ))
+            }
+            Engine::Articulated if self.rapier != RapierSettings::default() => Err(
+                crate::SettingError::new("rapier", "applies to engine = \"rapier\""),
+            ),
+            _ => Ok(()),
+        }
+    }
+
+    /// A short description for tables and reports: `articulated (euler, 2 substeps)`.
+    pub fn describe(&self) -> String {
+        match self.engine {
+            Engine::Rapier => format!(
+                "rapier ({} solver iterations)",
+                self.rapier.solver_iterations
+            ),
+            Engine::Articulated => format!(
+                "articulated ({}, {} substeps)",
+                match self.articulated.integrator {
+                    Integrator::Euler => "euler",
+                    Integrator::Rk4 => "rk4",
+                },
+                self.articulated.substeps
+            ),
+        }
+    }
+}
+
+/// The plant the settings name, built from `model` under gravity `gravity`, at q = 0.
+pub fn build(
+    model: Arc<ArmModel>,
+    gravity: [f64; 3],
+    settings: &PlantSettings,
+) -> Result<Box<dyn Plant>, PlantError> {
+    Ok(match settings.engine {
+        Engine::Rapier => Box::new(RapierPlant::new(model, gravity, &settings.rapier)?),
+        Engine::Articulated => Box::new(ArticulatedPlant::new(
+            model,
+            gravity,
+            &settings.articulated,
+        )?),
     })
+}
+
+/// Errors of building a plant.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum PlantError {
+    #[error("{path}: `{field}`: {message}")]
+    BadSetting {
+        path: PathBuf,
+        field: String,
+        message: String,
+    },
+    #[error("{path}: rapier refused joint '{joint}' (it would close a kinematic cycle)")]
+    Rejected { path: PathBuf, joint: String },
+}
+
+impl PlantError {
+    fn setting(model: &ArmModel, section: &str, e: crate::SettingError) -> Self {
+        let e = e.within(section);
+        Self::BadSetting {
+            path: model.source.clone(),
+            field: e.field,
+            message: e.message,
+        }
+    }
+}
+
+fn check_gravity(model: &ArmModel, gravity: [f64; 3]) -> Result<(), PlantError> {
+    if gravity.iter().all(|g| g.is_finite()) {
+        Ok(())
+    } else {
+        Err(PlantError::BadSetting {
+            path: model.source.clone(),
+            field: "gravity".into(),
+            message: "must be finite".into(),
+        })
+    }
+}
+
+/// `tau` clamped to each joint's effort limit, into `out`.
+///
+/// # Panics
+/// If `tau` does not have one entry per joint.
+fn clamp_to_effort(model: &ArmModel, tau: &[f64], out: &mut [f64]) {
+    assert_eq!(tau.len(), model.joints.len(), "tau has the wrong length");
+    for ((out, &t), joint) in out.iter_mut().zip(tau).zip(&model.joints) {
+        *out = match joint.effort {
+            Some(e) => t.clamp(-e, e),
+            None => t,
+        };
+    }
 }

@@ -1,6 +1,7 @@
 //! Open-loop runs with constant joint torques (the `simulate` command).
 
-use super::Arm;
+use super::Plant;
+use crate::arm::EndEffector;
 
 /// One tick of an open-loop run.
 #[derive(Clone, Debug, PartialEq)]
@@ -17,7 +18,8 @@ pub struct OpenLoopSample {
 /// # Panics
 /// If a slice does not have one entry per joint.
 pub fn run_open_loop(
-    arm: &mut Arm,
+    arm: &mut dyn Plant,
+    ee: &EndEffector,
     q0: &[f64],
     qd0: &[f64],
     torque: &[f64],
@@ -28,9 +30,9 @@ pub fn run_open_loop(
     arm.set_torques(torque);
     let steps = (duration / dt).round() as usize;
     let mut out = Vec::with_capacity(steps + 1);
-    let sample = |arm: &Arm, k: usize| {
+    let sample = |arm: &dyn Plant, k: usize| {
         let (q, qd) = arm.state();
-        let p = arm.ee_position();
+        let p = arm.ee_position(ee);
         OpenLoopSample {
             t: k as f64 * dt,
             q,

@@ -7,7 +7,6 @@ use std::time::Instant;
 use super::{Method, NoObserver, RunSetup, ScenarioError, run};
 use crate::estimation::uaic::Uaic;
 use crate::estimation::{Estimate, Estimator, EstimatorInput};
-use crate::plant::Arm;
 use crate::precision::{Gradient, PrecisionInput, PrecisionMethod};
 use crate::sensors::{Camera, Readings, SensorSuite};
 
@@ -27,7 +26,7 @@ pub fn bench(setup: &RunSetup, ticks: u64) -> Result<Vec<Figure>, ScenarioError>
     let ticks = ticks.max(1);
     let per_tick = |start: Instant| start.elapsed().as_secs_f64() * 1e6 / ticks as f64;
 
-    let mut arm = Arm::new((*setup.model).clone(), setup.arm_options())?;
+    let mut arm = setup.plant()?;
     let n = arm.n_joints();
     let layout = setup.layout;
     let qd0 = sc.initial.qd.clone().unwrap_or_else(|| vec![0.0; n]);
@@ -48,6 +47,7 @@ pub fn bench(setup: &RunSetup, ticks: u64) -> Result<Vec<Figure>, ScenarioError>
         layout,
         &sc.sensors,
         Camera::new(sc.camera.clone()),
+        setup.ee,
         &[],
         dt,
         sc.seed,
@@ -55,7 +55,7 @@ pub fn bench(setup: &RunSetup, ticks: u64) -> Result<Vec<Figure>, ScenarioError>
     let mut readings = Readings::missing(&layout);
     let start = Instant::now();
     for k in 0..ticks {
-        sensors.read(&arm, k, &mut readings);
+        sensors.read(arm.as_ref(), k, &mut readings);
     }
     let sensors_us = per_tick(start);
 
@@ -71,7 +71,8 @@ pub fn bench(setup: &RunSetup, ticks: u64) -> Result<Vec<Figure>, ScenarioError>
 
     // Controller: one belief update (GP included) and f*, on fixed readings.
     let nominal: Vec<f64> = super::runner::nominal_precisions(sensors.sigmas());
-    let mut belief = Uaic::new(sc.controller.uaic(dt), layout, setup.gp.clone(), dt);
+    let observation = crate::estimation::models::GpCamera::shared(layout, setup.gp.clone());
+    let mut belief = Uaic::new(sc.controller.uaic(dt), observation, dt);
     let mut control = crate::control::Control::new(&sc.controller.control());
     let zeros = vec![0.0; n];
     let start = Instant::now();

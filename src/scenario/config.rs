@@ -31,6 +31,9 @@ pub struct Scenario {
     #[serde(default = "default_record_every")]
     pub record_every: u64,
     pub robot: RobotConfig,
+    /// The simulated arm's engine and its settings.
+    #[serde(default)]
+    pub plant: crate::plant::PlantSettings,
     pub initial: InitialState,
     /// Set points: from `time` on, the target is `q`.
     pub targets: Vec<Target>,
@@ -81,7 +84,7 @@ fn default_seed() -> u64 {
     1
 }
 
-/// The arm.
+/// The arm: which URDF, where its end effector is, the world's gravity.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct RobotConfig {
@@ -93,39 +96,16 @@ pub struct RobotConfig {
     pub ee_offset: [f64; 3],
     #[serde(default = "default_gravity")]
     pub gravity: [f64; 3],
-    #[serde(default = "default_iterations")]
-    pub solver_iterations: usize,
-    /// Repair inertias that break the triangle inequality (see [`crate::plant::UrdfOptions`]).
+    /// Repair inertias that break the triangle inequality (see [`crate::arm::UrdfOptions`]).
     #[serde(default)]
     pub balance_inertia: bool,
-    /// `rapier` (default) or `articulated` (aift's own dynamics; docs/method.md, "Plant").
-    #[serde(default)]
-    pub engine: crate::plant::Engine,
-    /// The articulated engine's integrator: `euler` (rapier's map) or `rk4`.
-    #[serde(default)]
-    pub integrator: crate::plant::Integrator,
 }
-
-/// Most solver iterations (substeps) per tick.
-pub const MAX_SOLVER_ITERATIONS: usize = 1000;
 
 impl RobotConfig {
     /// How the URDF is read.
-    pub fn urdf_options(&self) -> crate::plant::UrdfOptions {
-        crate::plant::UrdfOptions {
+    pub fn urdf_options(&self) -> crate::arm::UrdfOptions {
+        crate::arm::UrdfOptions {
             balance_inertia: self.balance_inertia,
-        }
-    }
-
-    /// The simulated arm's options.
-    pub fn arm_options(&self) -> crate::plant::ArmOptions {
-        crate::plant::ArmOptions {
-            ee_link: self.ee_link.clone(),
-            ee_offset: self.ee_offset,
-            gravity: self.gravity,
-            solver_iterations: self.solver_iterations,
-            engine: self.engine,
-            integrator: self.integrator,
         }
     }
 }
@@ -136,10 +116,6 @@ fn default_ee() -> String {
 
 fn default_gravity() -> [f64; 3] {
     [0.0, 0.0, -9.81]
-}
-
-fn default_iterations() -> usize {
-    crate::plant::ArmOptions::default().solver_iterations
 }
 
 /// The arm's state at t = 0.
@@ -512,20 +488,9 @@ impl Scenario {
         if !self.robot.gravity.iter().all(|v| v.is_finite()) {
             return Err(bad("robot.gravity", "values must be finite".into()));
         }
-        if self.robot.engine == crate::plant::Engine::Rapier
-            && self.robot.integrator != crate::plant::Integrator::Euler
-        {
-            return Err(bad(
-                "robot.integrator",
-                "applies to robot.engine = \"articulated\" (rapier integrates its own way)".into(),
-            ));
-        }
-        if !(1..=MAX_SOLVER_ITERATIONS).contains(&self.robot.solver_iterations) {
-            return Err(bad(
-                "robot.solver_iterations",
-                format!("must be in 1..={MAX_SOLVER_ITERATIONS}"),
-            ));
-        }
+        self.plant
+            .validate()
+            .map_err(|e| bad(&format!("plant.{}", e.field), e.message))?;
         finite_vec("initial.q", &self.initial.q, n_joints)?;
         if let Some(qd) = &self.initial.qd {
             finite_vec("initial.qd", qd, n_joints)?;

@@ -3,8 +3,8 @@
 //!
 //! - Start: each joint at 0, or mid-range when 0 is within 10 % of a limit; two targets inside the
 //!   limits (+-0.3 rad, alternating per joint, moved inward where the range is narrow).
-//! - PID gains from the arm's own inertia: the mass matrix M and gravity torque G are measured
-//!   from the simulator at the start and the targets ([`crate::plant::Arm::probe_dynamics`]);
+//! - PID gains from the arm's own inertia: the mass matrix M and gravity torque G of the arm's
+//!   model at the start and the targets ([`crate::arm::Dynamics`]);
 //!   with the largest row sum m_i = sum_j |M_ij| seen (the torque joint i meets when every joint
 //!   accelerates at 1 rad/s^2: its own inertia plus the reaction of the others' motion, which on
 //!   a light wrist under a heavy shoulder is many times the diagonal), the largest gravity torque
@@ -38,7 +38,9 @@ use rand::SeedableRng;
 
 use super::ScenarioError;
 use crate::gp;
-use crate::plant::{Arm, ArmModel, ArmOptions, JointKind, UrdfOptions};
+use std::sync::Arc;
+
+use crate::arm::{ArmModel, Dynamics, EndEffector, JointKind, Kinematics, UrdfOptions};
 use crate::sensors::{Camera, CameraConfig};
 
 /// What `aift init` needs.
@@ -116,7 +118,7 @@ fn default_ee(model: &ArmModel) -> String {
 
 /// Writes a healthy scenario for the arm in `urdf` (as TOML text with comments).
 pub fn init_scenario(urdf: &Path, options: &InitOptions) -> Result<String, ScenarioError> {
-    let model = crate::plant::load_urdf_with(
+    let model = crate::arm::load_urdf_with(
         urdf,
         &UrdfOptions {
             balance_inertia: options.balance_inertia,
@@ -126,11 +128,9 @@ pub fn init_scenario(urdf: &Path, options: &InitOptions) -> Result<String, Scena
         .ee_link
         .clone()
         .unwrap_or_else(|| default_ee(&model));
-    if model.link(&ee).is_none() {
-        return Err(model.unknown_link_error(&ee).into());
-    }
+    let end_effector = EndEffector::new(&model, &ee, [0.0; 3])?;
+    let model = Arc::new(model);
     let n = model.joints.len();
-    let dt = 1e-3;
 
     // Start and targets.
     let mut q0 = vec![0.0; n];
@@ -158,21 +158,15 @@ pub fn init_scenario(urdf: &Path, options: &InitOptions) -> Result<String, Scena
         }
     }
 
-    // Dynamics at the start and the targets.
-    let mut arm = Arm::new(
-        model.clone(),
-        ArmOptions {
-            ee_link: ee.clone(),
-            ..ArmOptions::default()
-        },
-    )?;
+    // Dynamics at the start and the targets (gravity along -z, the scenario's default).
+    let mut dynamics = Dynamics::new(model.clone(), [0.0, 0.0, -9.81]);
     // Per joint: the largest diagonal inertia, the largest row sum of |M| and the largest
     // gravity torque seen.
     let mut m_diag = vec![0.0f64; n];
     let mut m_max = vec![0.0f64; n];
     let mut g_max = vec![0.0f64; n];
     for q in [&q0, &t1, &t2] {
-        let (m, g) = arm.probe_dynamics(q, dt);
+        let (m, g) = dynamics.mass_matrix_and_gravity(q);
         for i in 0..n {
             m_diag[i] = m_diag[i].max(m[(i, i)]);
             m_max[i] = m_max[i].max((0..n).map(|j| m[(i, j)].abs()).sum::<f64>());
@@ -208,13 +202,10 @@ pub fn init_scenario(urdf: &Path, options: &InitOptions) -> Result<String, Scena
     let box_ = gp::derive_box(&[q0.clone(), t1.clone(), t2.clone()], 0.3);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
     let samples = gp::latin_hypercube(&box_, 200, &mut rng);
-    let zeros = vec![0.0; n];
+    let mut arm = Kinematics::new(model.clone());
     let points: Vec<Vector3<f64>> = samples
         .iter()
-        .map(|q| {
-            arm.set_state(q, &zeros);
-            arm.ee_position()
-        })
+        .map(|q| end_effector.position(arm.set(q)))
         .collect();
     let centroid = points.iter().fold(Vector3::zeros(), |a, p| a + p) / points.len() as f64;
     let mut cov = Matrix3::zeros();
@@ -252,8 +243,8 @@ pub fn init_scenario(urdf: &Path, options: &InitOptions) -> Result<String, Scena
         let hidden = samples
             .iter()
             .filter(|q| {
-                arm.set_state(q, &zeros);
-                camera.observe(&arm, &mut image).is_err()
+                arm.set(q);
+                camera.observe(&arm, &end_effector, &mut image).is_err()
             })
             .count();
         if best.as_ref().is_none_or(|(h, _)| hidden < *h) {

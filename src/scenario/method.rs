@@ -12,7 +12,8 @@ use serde::{Deserialize, Serialize};
 use super::{RunSetup, ScenarioError};
 use crate::estimation::Estimator;
 use crate::estimation::imm::Imm;
-use crate::estimation::kalman::{Ekf, EkfGate, ModelPrediction, VbAkf};
+use crate::estimation::kalman::{Ekf, EkfGate, VbAkf, transition_model};
+use crate::estimation::models::GpCamera;
 use crate::estimation::uaic::Uaic;
 use crate::precision::{
     Bayes, Calibration, Detector, Deterministic, Fixed, GatedLearning, Gradient, Oracle, PerGroup,
@@ -222,27 +223,22 @@ pub fn build(method: Method, ctx: &MethodContext<'_>) -> Result<MethodParts, Sce
     let p = &sc.precision;
     let nominal = ctx.nominal;
     let bounds = p.bounds();
+    let observation = GpCamera::shared(*ctx.layout, ctx.setup.gp.clone());
     let uaic = || -> Box<dyn Estimator> {
         Box::new(Uaic::new(
             sc.controller.uaic(sc.dt),
-            *ctx.layout,
-            ctx.setup.gp.clone(),
+            observation.clone(),
             sc.dt,
         ))
     };
     let gradient = || Gradient::new(nominal, p.kappa_zeta, p.correction, bounds);
     let kc = &sc.kalman;
-    let ekf = || {
-        Ekf::new(
-            *ctx.layout,
-            ctx.setup.gp.clone(),
-            sc.dt,
-            kc.acceleration_noise
-                .unwrap_or(sc.controller.acceleration_bound),
-        )
-    };
+    let ekf = || Ekf::new(observation.clone(), sc.dt);
     let fixed = || -> Box<dyn PrecisionMethod> { Box::new(Fixed::new(nominal)) };
-    let process = || ModelPrediction::from_config(kc, &ctx.setup.model, sc.robot.gravity);
+    let acceleration_noise = kc
+        .acceleration_noise
+        .unwrap_or(sc.controller.acceleration_bound);
+    let process = || transition_model(kc, &ctx.setup.model, sc.robot.gravity, acceleration_noise);
     match method {
         Method::EkfGate => {
             return Ok((
@@ -262,11 +258,10 @@ pub fn build(method: Method, ctx: &MethodContext<'_>) -> Result<MethodParts, Sce
         Method::Hybrid => {
             let mut belief = sc.controller.uaic(sc.dt);
             belief.prior = sc.hybrid.prior.initial();
-            let uaic = Uaic::new(belief, *ctx.layout, ctx.setup.gp.clone(), sc.dt);
+            let uaic = Uaic::new(belief, observation.clone(), sc.dt);
             let hybrid = crate::estimation::hybrid::build(
                 uaic,
-                *ctx.layout,
-                ctx.setup.gp.clone(),
+                observation.clone(),
                 sc.dt,
                 sc.controller.acceleration_bound,
                 &ctx.setup.model,

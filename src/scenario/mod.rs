@@ -31,9 +31,10 @@ pub use runner::{
 };
 pub use trajectory::{TrajectoryColumns, TrajectoryRecorder, TrajectorySchema, TrajectoryWriter};
 
+use crate::arm::{self, ArmError, ArmModel, EndEffector, Kinematics};
 use crate::fsio::{self, FsError};
 use crate::gp::{self, GpError, GpModel};
-use crate::plant::{self, ArmModel, ArmOptions, PlantError};
+use crate::plant::{self, Plant, PlantError};
 use crate::sensors::{Camera, ChannelLayout, Fault};
 
 /// Errors of the scenario stage; each names the file and the key.
@@ -53,13 +54,15 @@ pub enum ScenarioError {
     #[error("--set {key}: {message}")]
     Override { key: String, message: String },
     #[error(transparent)]
+    Arm(#[from] ArmError),
+    #[error(transparent)]
     Plant(#[from] PlantError),
     #[error("{path}: `{field}`")]
     Robot {
         path: PathBuf,
         field: &'static str,
         #[source]
-        source: Box<PlantError>,
+        source: Box<ArmError>,
     },
     #[error("{path}: the camera GP")]
     Gp {
@@ -215,7 +218,7 @@ impl LoadedScenario {
                 field: "robot.urdf".into(),
                 message: e.to_string(),
             })?;
-        plant::parse_urdf_with(&text, &path, &self.scenario.robot.urdf_options()).map_err(|e| {
+        arm::parse_urdf_with(&text, &path, &self.scenario.robot.urdf_options()).map_err(|e| {
             ScenarioError::Robot {
                 path: self.path.clone(),
                 field: "robot.urdf",
@@ -237,6 +240,7 @@ pub fn parse_scenario(
         message,
     };
     let keyed = |key: String, message: String| {
+        let message = format!("{}{}", message.trim_end(), moved_key_hint(&key, &message));
         if key.is_empty() || key == "." {
             message
         } else {
@@ -271,6 +275,31 @@ pub fn parse_scenario(
             None => parse_error(keyed(key, message)),
         }
     })
+}
+
+/// Keys that moved to another section, with where they went: an unknown-field error on one of
+/// them says so.
+const MOVED_KEYS: &[(&str, &str, &str)] = &[
+    ("robot", "engine", "plant.engine"),
+    ("robot", "integrator", "plant.articulated.integrator"),
+    (
+        "robot",
+        "solver_iterations",
+        "plant.rapier.solver_iterations (rapier) or plant.articulated.substeps",
+    ),
+];
+
+/// `; it moved to ...` when `message` is serde's unknown-field error for a key that moved.
+fn moved_key_hint(key: &str, message: &str) -> String {
+    MOVED_KEYS
+        .iter()
+        .find(|(s, k, _)| {
+            (key == format!("{s}.{k}") || key == *s)
+                && message.contains(&format!("unknown field `{k}`"))
+        })
+        .map_or(String::new(), |(s, k, to)| {
+            format!("; `{s}.{k}` moved to `{to}`")
+        })
 }
 
 /// Applies one `KEY=VALUE` to the TOML table. VALUE is read as TOML (`3`, `[1, 2]`, `true`,
@@ -419,7 +448,10 @@ fn check_joint_limits(sc: &Scenario, model: &ArmModel, path: &Path) -> Result<()
 #[derive(Clone)]
 pub struct RunSetup {
     pub loaded: LoadedScenario,
+    /// The arm as the plant simulates it (the truth).
     pub model: Arc<ArmModel>,
+    /// The point the camera sees.
+    pub ee: EndEffector,
     pub layout: ChannelLayout,
     pub gp: Arc<GpModel>,
     pub faults: Vec<Fault>,
@@ -449,13 +481,7 @@ impl RunSetup {
         let layout = ChannelLayout::new(n, sc.camera.model);
         sc.validate(&layout, &loaded.path)?;
         check_joint_limits(sc, &model, &loaded.path)?;
-        if model.link(&sc.robot.ee_link).is_none() {
-            return Err(ScenarioError::Robot {
-                path: loaded.path.clone(),
-                field: "robot.ee_link",
-                source: Box::new(model.unknown_link_error(&sc.robot.ee_link)),
-            });
-        }
+        let ee = end_effector(&loaded, &model)?;
         let faults: Vec<Fault> = sc
             .faults
             .iter()
@@ -496,6 +522,7 @@ impl RunSetup {
         let warnings = late_settings(&loaded.scenario, &faults);
         Ok(Self {
             model: Arc::new(model),
+            ee,
             layout,
             gp: Arc::new(gp),
             faults,
@@ -527,10 +554,25 @@ impl RunSetup {
         })
     }
 
-    /// Arm options from the scenario.
-    pub fn arm_options(&self) -> ArmOptions {
-        self.scenario().robot.arm_options()
+    /// A new plant of the scenario's engine, at rest at q = 0.
+    pub fn plant(&self) -> Result<Box<dyn Plant>, ScenarioError> {
+        let sc = self.scenario();
+        Ok(plant::build(
+            self.model.clone(),
+            sc.robot.gravity,
+            &sc.plant,
+        )?)
     }
+}
+
+/// The scenario's end effector on its arm (`robot.ee_link` and `robot.ee_offset`).
+fn end_effector(loaded: &LoadedScenario, model: &ArmModel) -> Result<EndEffector, ScenarioError> {
+    let robot = &loaded.scenario.robot;
+    EndEffector::new(model, &robot.ee_link, robot.ee_offset).map_err(|e| ScenarioError::Robot {
+        path: loaded.path.clone(),
+        field: "robot.ee_link",
+        source: Box::new(e),
+    })
 }
 
 /// The GP's training box: given, or the start and targets widened by the margin.
@@ -561,11 +603,13 @@ pub fn train_gp_fresh(
     let layout = ChannelLayout::new(model.joints.len(), loaded.scenario.camera.model);
     loaded.scenario.validate(&layout, &loaded.path)?;
     let (gp, fit) = train_gp(&loaded, &model, loaded.scenario.gp.points)?;
-    let mut arm = plant::Arm::new(model, loaded.scenario.robot.arm_options())?;
+    let ee = end_effector(&loaded, &model)?;
+    let mut arm = Kinematics::new(Arc::new(model));
     let camera = Camera::new(loaded.scenario.camera.clone());
     let held = gp::evaluate_held_out(
         &gp,
         &mut arm,
+        &ee,
         &camera,
         2000,
         loaded.scenario.gp.seed.wrapping_add(1),
@@ -580,10 +624,11 @@ pub fn train_gp(
     points: usize,
 ) -> Result<(GpModel, gp::FitReport), ScenarioError> {
     let sc = &loaded.scenario;
-    let mut arm = plant::Arm::new(model.clone(), sc.robot.arm_options())?;
+    let ee = end_effector(loaded, model)?;
+    let mut arm = Kinematics::new(Arc::new(model.clone()));
     let camera = Camera::new(sc.camera.clone());
     let bounds = training_box(sc);
-    let set = gp::sample_training_set(&mut arm, &camera, &bounds, points, sc.gp.seed);
+    let set = gp::sample_training_set(&mut arm, &ee, &camera, &bounds, points, sc.gp.seed);
     let gp_err = |source| ScenarioError::Gp {
         path: loaded.path.clone(),
         source,

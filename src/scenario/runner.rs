@@ -15,7 +15,7 @@ use super::metrics::{DivergenceGuard, RunMetrics, RunResult};
 use super::{Method, RunSetup, ScenarioError};
 use crate::control::Control;
 use crate::estimation::{Estimate, Estimator, EstimatorInput};
-use crate::plant::Arm;
+use crate::plant::Plant;
 use crate::precision::{Calibration, Detection, PrecisionInput, PrecisionMethod};
 use crate::sensors::{Camera, ChannelLayout, Readings, SensorSuite};
 
@@ -124,7 +124,7 @@ pub struct Simulation {
     ticks: u64,
     targets: Vec<(f64, Vec<f64>)>,
     target: usize,
-    arm: Arm,
+    arm: Box<dyn Plant>,
     sensors: SensorSuite,
     estimator: Box<dyn Estimator>,
     precision: Box<dyn PrecisionMethod>,
@@ -170,7 +170,7 @@ impl Simulation {
         (estimator, precision): MethodParts,
     ) -> Result<Self, ScenarioError> {
         let sc = setup.scenario();
-        let mut arm = Arm::new((*setup.model).clone(), setup.arm_options())?;
+        let mut arm = setup.plant()?;
         let layout = setup.layout;
         let n = layout.n_joints();
         let dt = sc.dt;
@@ -178,6 +178,7 @@ impl Simulation {
             layout,
             &sc.sensors,
             Camera::new(sc.camera.clone()),
+            setup.ee,
             &setup.faults,
             dt,
             seed,
@@ -228,8 +229,8 @@ impl Simulation {
         &self.layout
     }
 
-    pub fn arm(&self) -> &Arm {
-        &self.arm
+    pub fn arm(&self) -> &dyn Plant {
+        self.arm.as_ref()
     }
 
     pub fn nominal(&self) -> &[f64] {
@@ -258,7 +259,7 @@ impl Simulation {
         while self.target + 1 < self.targets.len() && self.targets[self.target + 1].0 <= t + 1e-9 {
             self.target += 1;
         }
-        self.sensors.read(&self.arm, k, &mut self.readings);
+        self.sensors.read(self.arm.as_ref(), k, &mut self.readings);
         if let Some(r) = readings {
             assert_eq!(r.values.len(), self.layout.len(), "one reading per channel");
             self.readings.values.copy_from_slice(&r.values);

@@ -12,10 +12,11 @@
 //! end effector's world (x, y, z), with the same noise and occlusion and no distortion.
 
 use nalgebra::Vector3;
-use rapier3d_f64::parry::query::Ray;
+use parry3d_f64::query::Ray;
 use serde::{Deserialize, Serialize};
 
-use crate::plant::Arm;
+use crate::arm::EndEffector;
+use crate::arm::kinematics::ArmPose;
 
 /// What the camera reports.
 #[derive(
@@ -207,24 +208,22 @@ impl Camera {
 
     /// Whether one of the arm's collision shapes, other than those on the end effector's own
     /// body, lies on the line of sight from the camera to `p`.
-    pub fn occluded(&self, arm: &Arm, p: &Vector3<f64>) -> bool {
+    pub fn occluded(&self, arm: &dyn ArmPose, ee: &EndEffector, p: &Vector3<f64>) -> bool {
         let d = p - self.position;
         let distance = d.norm();
         if distance <= OCCLUSION_MARGIN {
             return false;
         }
         let dir = d / distance;
-        let ray = Ray::new(
-            crate::plant::to_dvec(&self.position),
-            crate::plant::to_dvec(&dir),
-        );
-        let ee_body = arm.ee_body();
-        arm.colliders()
+        let vector = |v: &Vector3<f64>| parry3d_f64::math::Vector::new(v.x, v.y, v.z);
+        let ray = Ray::new(vector(&self.position), vector(&dir));
+        arm.model()
+            .colliders
             .iter()
-            .filter(|c| c.body != ee_body)
+            .filter(|c| c.body != ee.body)
             .any(|c| {
-                let pose = arm.body_pose_raw(c.body) * c.local_pose;
-                c.shape
+                let pose = arm.collision_pose(c.body) * c.parry_pose;
+                c.parry_shape
                     .cast_ray(&pose, &ray, distance - OCCLUSION_MARGIN, true)
                     .is_some()
             })
@@ -249,10 +248,15 @@ impl Camera {
 
     /// What the camera sees of the arm's end effector this tick, before noise, written into
     /// `out` (one value per output).
-    pub fn observe(&self, arm: &Arm, out: &mut [f64]) -> Result<(), NotSeen> {
-        let p = arm.ee_position();
+    pub fn observe(
+        &self,
+        arm: &dyn ArmPose,
+        ee: &EndEffector,
+        out: &mut [f64],
+    ) -> Result<(), NotSeen> {
+        let p = arm.ee_position(ee);
         self.measure(&p, out)?;
-        if self.config.occlusion && self.occluded(arm, &p) {
+        if self.config.occlusion && self.occluded(arm, ee, &p) {
             return Err(NotSeen::Occluded);
         }
         Ok(())

@@ -20,7 +20,8 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 
-use crate::plant::Arm;
+use crate::arm::EndEffector;
+use crate::plant::Plant;
 pub use camera::{Camera, CameraConfig, CameraModel, NotSeen};
 pub use faults::{ChannelSelection, Fault, FaultKind, FaultSpec};
 
@@ -319,6 +320,8 @@ impl SensorConfig {
 pub struct SensorSuite {
     layout: ChannelLayout,
     camera: Camera,
+    /// The point the camera sees.
+    ee: EndEffector,
     sigmas: Vec<f64>,
     rngs: Vec<ChaCha8Rng>,
     faults: Vec<faults::ActiveFault>,
@@ -341,6 +344,7 @@ impl SensorSuite {
         layout: ChannelLayout,
         config: &SensorConfig,
         camera: Camera,
+        ee: EndEffector,
         faults: &[Fault],
         dt: f64,
         seed: u64,
@@ -385,6 +389,7 @@ impl SensorSuite {
             noise: vec![0.0; layout.len()],
             camera_miss: None,
             camera,
+            ee,
         }
     }
 
@@ -417,7 +422,7 @@ impl SensorSuite {
     }
 
     /// Reads the plant at tick `tick` (time `tick * dt`) into `out`, without allocating.
-    pub fn read(&mut self, arm: &Arm, tick: u64, out: &mut Readings) {
+    pub fn read(&mut self, arm: &dyn Plant, tick: u64, out: &mut Readings) {
         let n = self.layout.n_joints();
         arm.read_state(&mut self.q, &mut self.qd);
         for i in 0..n {
@@ -425,7 +430,7 @@ impl SensorSuite {
             self.truth[n + i] = Some(self.qd[i]);
         }
         let cams = self.layout.group_range(SensorGroup::Camera);
-        match self.camera.observe(arm, &mut self.image) {
+        match self.camera.observe(arm, &self.ee, &mut self.image) {
             Ok(()) => {
                 for (c, v) in cams.zip(&self.image) {
                     self.truth[c] = Some(*v);

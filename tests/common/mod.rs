@@ -222,7 +222,7 @@ pub fn tiny_campaign(name: &str, extra: &str) -> String {
 name = "{name}"
 seeds = 1
 methods = ["no-ft", "oracle"]
-set = ["robot.engine=\"articulated\"", "duration=9.0"]
+set = ["plant.engine=\"articulated\"", "duration=9.0"]
 channels = ["enc*"]
 
 [[arms]]
@@ -234,5 +234,47 @@ kind = "freeze"
 onsets = ["moving"]
 {extra}"#,
         repo("assets/scenarios/paper_healthy.toml").display()
+    )
+}
+
+/// The arm model of a URDF in the repository.
+pub fn model(file: &str) -> std::sync::Arc<aift::arm::ArmModel> {
+    std::sync::Arc::new(aift::arm::load_urdf(&repo(file)).expect("the arm loads"))
+}
+
+/// The end effector on link `ee` of a model.
+pub fn ee(model: &aift::arm::ArmModel) -> aift::arm::EndEffector {
+    aift::arm::EndEffector::new(model, "ee", [0.0; 3]).expect("the arm has a link named ee")
+}
+
+/// A plant of a URDF in the repository under standard gravity: `engine`, its integrator (the
+/// articulated engine's) and `iterations` (rapier's solver iterations or the substeps).
+pub fn plant_of(
+    file: &str,
+    engine: aift::plant::Engine,
+    integrator: aift::plant::Integrator,
+    iterations: usize,
+) -> Box<dyn aift::plant::Plant> {
+    let mut settings = aift::plant::PlantSettings {
+        engine,
+        ..Default::default()
+    };
+    match engine {
+        aift::plant::Engine::Rapier => settings.rapier.solver_iterations = iterations,
+        aift::plant::Engine::Articulated => {
+            settings.articulated.substeps = iterations;
+            settings.articulated.integrator = integrator;
+        }
+    }
+    aift::plant::build(model(file), [0.0, 0.0, -9.81], &settings).expect("the plant builds")
+}
+
+/// The rapier plant of a URDF in the repository with the default settings.
+pub fn rapier(file: &str) -> Box<dyn aift::plant::Plant> {
+    plant_of(
+        file,
+        aift::plant::Engine::Rapier,
+        aift::plant::Integrator::Euler,
+        2,
     )
 }

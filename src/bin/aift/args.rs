@@ -245,6 +245,13 @@ pub fn parse_float_list(text: &str) -> Result<FloatList, String> {
     Ok(FloatList(values))
 }
 
+/// The plant's engine, as `simulate` takes it.
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+pub enum EngineArg {
+    Rapier,
+    Articulated,
+}
+
 #[derive(Debug, Args)]
 pub struct SimulateArgs {
     /// The URDF file of the arm.
@@ -268,9 +275,12 @@ pub struct SimulateArgs {
     /// Time step (s).
     #[arg(long, default_value_t = 0.001)]
     pub dt: f64,
-    /// Solver iterations (substeps) per step.
+    /// Solver iterations (rapier) or substeps (articulated) per step (default 2).
     #[arg(long)]
     pub iterations: Option<usize>,
+    /// The engine: rapier (default) or articulated.
+    #[arg(long, value_enum, default_value = "rapier")]
+    pub engine: EngineArg,
     /// Repair inertias that break the triangle inequality.
     #[arg(long)]
     pub balance_inertia: bool,

@@ -6,8 +6,9 @@ use std::sync::Arc;
 
 use anyhow::{Context, anyhow};
 
+use aift::arm;
 use aift::fsio::{FsError, OutputKind, Staged};
-use aift::plant::{self, Arm, ArmOptions};
+use aift::plant::{self, Engine, PlantSettings};
 use aift::precision::Calibration;
 use aift::report::{self, ReportError, run_files, table_files};
 use aift::scenario::{self, LoadedScenario, Method, RunSetup, calibrate, table};
@@ -713,9 +714,9 @@ fn bench(args: BenchArgs) -> Result<(), Failure> {
 }
 
 fn check_urdf(args: CheckUrdfArgs) -> Result<(), Failure> {
-    let model = plant::load_urdf_with(
+    let model = arm::load_urdf_with(
         &args.path,
-        &plant::UrdfOptions {
+        &arm::UrdfOptions {
             balance_inertia: args.balance_inertia,
         },
     )
@@ -781,7 +782,7 @@ fn check_urdf(args: CheckUrdfArgs) -> Result<(), Failure> {
         say!(args.json, "warning: {w}");
     }
     if args.json {
-        let doc = plant::describe_arm(&model, &args.path, args.ee.as_deref());
+        let doc = arm::describe_arm(&model, &args.path, args.ee.as_deref());
         println!("{doc}");
     }
     Ok(())
@@ -817,26 +818,35 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
             args.duration
         )));
     }
-    let mut options = ArmOptions {
-        ee_link: args.ee.clone(),
-        ..ArmOptions::default()
-    };
+    let mut settings = PlantSettings::default();
+    if let crate::args::EngineArg::Articulated = args.engine {
+        settings.engine = Engine::Articulated;
+    }
     if let Some(it) = args.iterations {
-        let max = aift::scenario::config::MAX_SOLVER_ITERATIONS;
+        let max = plant::MAX_SOLVER_ITERATIONS.min(plant::MAX_SUBSTEPS);
         if !(1..=max).contains(&it) {
             return Err(bad_input(anyhow!("--iterations must be in 1..={max}")));
         }
-        options.solver_iterations = it;
+        settings.rapier.solver_iterations = it;
+        settings.articulated.substeps = it;
+        if settings.engine == Engine::Rapier {
+            settings.articulated = Default::default();
+        } else {
+            settings.rapier = Default::default();
+        }
     }
     let staged = stage(&args.out, OutputKind::File, true)?;
-    let model = plant::load_urdf_with(
+    let model = arm::load_urdf_with(
         &args.urdf,
-        &plant::UrdfOptions {
+        &arm::UrdfOptions {
             balance_inertia: args.balance_inertia,
         },
     )
     .map_err(bad_input)?;
-    let mut arm = Arm::new(model, options).map_err(bad_input)?;
+    let ee = arm::EndEffector::new(&model, &args.ee, [0.0; 3]).map_err(bad_input)?;
+    let joint_names: Vec<String> = model.joints.iter().map(|j| j.name.clone()).collect();
+    let mut arm = plant::build(std::sync::Arc::new(model), [0.0, 0.0, -9.81], &settings)
+        .map_err(bad_input)?;
     let n = arm.n_joints();
     let check_len = |name: &str, v: &[f64]| {
         if v.len() == n {
@@ -846,7 +856,7 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
                 "--{name} has {} values; {} has {n} movable joints ({})",
                 v.len(),
                 args.urdf.display(),
-                arm.joint_names().join(", ")
+                joint_names.join(", ")
             )))
         }
     };
@@ -855,7 +865,15 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
     check_len("q0", &args.q0.0)?;
     check_len("qd0", &qd0)?;
     check_len("torque", &torque)?;
-    let samples = plant::run_open_loop(&mut arm, &args.q0.0, &qd0, &torque, args.duration, args.dt);
+    let samples = plant::run_open_loop(
+        arm.as_mut(),
+        &ee,
+        &args.q0.0,
+        &qd0,
+        &torque,
+        args.duration,
+        args.dt,
+    );
     if let Some(bad) = samples.iter().find(|s| {
         s.q.iter()
             .chain(&s.qd)

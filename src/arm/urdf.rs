@@ -2,7 +2,7 @@
 //!
 //! Our own loader on `urdf-rs` rather than `rapier3d-urdf` (docs/method.md, "Plant"): that crate is
 //! f32-only, ignores `<dynamics>` and the inertial frame's rotation, accepts massless links and
-//! panics on some bad files. Here every defect becomes a typed [`PlantError`] naming the file and
+//! panics on some bad files. Here every defect becomes a typed [`ArmError`] naming the file and
 //! the element.
 //!
 //! Loading happens in three passes:
@@ -13,161 +13,18 @@
 //! 3. validation and the merge of fixed joints into bodies ([`build_model`]).
 
 use std::collections::{HashMap, HashSet, VecDeque};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use nalgebra::{Isometry3, Matrix3, Translation3, Unit, UnitQuaternion, Vector3};
 
-use super::PlantError;
+use super::ArmError;
+use super::model::{ArmModel, BodySpec, ColliderSpec, JointKind, JointSpec, LinkFrame, ShapeSpec};
 
 /// Deepest XML nesting accepted. Real URDFs nest about 5 levels.
 pub const MAX_XML_DEPTH: usize = 64;
 
 /// Relative tolerance of the inertia triangle inequality (rounding in published tensors).
 const TRIANGLE_TOLERANCE: f64 = 1e-6;
-
-/// Kind of a movable joint.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum JointKind {
-    /// Rotation about the axis, with position limits.
-    Revolute,
-    /// Rotation about the axis without limits.
-    Continuous,
-    /// Translation along the axis.
-    Prismatic,
-}
-
-impl JointKind {
-    /// The URDF name of the kind.
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Revolute => "revolute",
-            Self::Continuous => "continuous",
-            Self::Prismatic => "prismatic",
-        }
-    }
-}
-
-/// A movable joint between two bodies.
-#[derive(Clone, Debug)]
-pub struct JointSpec {
-    pub name: String,
-    pub kind: JointKind,
-    /// Index of the parent body in [`ArmModel::bodies`].
-    pub parent_body: usize,
-    /// Index of the child body in [`ArmModel::bodies`].
-    pub child_body: usize,
-    /// The joint frame at q = 0, in the parent body's frame.
-    pub origin: Isometry3<f64>,
-    /// Unit axis in the joint frame.
-    pub axis: Unit<Vector3<f64>>,
-    /// Position limits (lower, upper), if the joint has any.
-    pub limits: Option<(f64, f64)>,
-    /// Largest torque (force) the joint can apply, if given (> 0).
-    pub effort: Option<f64>,
-    /// Velocity limit as written in the file (reported, not enforced).
-    pub velocity_limit: Option<f64>,
-    /// Viscous friction `<dynamics damping>` (N m s/rad), 0 when absent.
-    pub damping: f64,
-    /// Coulomb friction `<dynamics friction>` (N m), 0 when absent.
-    pub friction: f64,
-}
-
-/// A primitive collision shape.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum ShapeSpec {
-    Box {
-        half_extents: Vector3<f64>,
-    },
-    /// Axis along the shape frame's z, as in URDF.
-    Cylinder {
-        radius: f64,
-        length: f64,
-    },
-    Sphere {
-        radius: f64,
-    },
-    /// Axis along the shape frame's z, as in URDF.
-    Capsule {
-        radius: f64,
-        length: f64,
-    },
-}
-
-/// A collision shape attached to a body.
-#[derive(Clone, Debug)]
-pub struct ColliderSpec {
-    /// The URDF link that declared it.
-    pub link: String,
-    pub shape: ShapeSpec,
-    /// Pose of the shape in its body's frame.
-    pub pose: Isometry3<f64>,
-}
-
-/// A rigid body: one URDF link plus every link merged into it by fixed joints.
-#[derive(Clone, Debug)]
-pub struct BodySpec {
-    /// The URDF link whose frame is the body frame.
-    pub link: String,
-    pub mass: f64,
-    /// Centre of mass in the body frame.
-    pub com: Vector3<f64>,
-    /// Inertia tensor about the centre of mass, in body-frame axes.
-    pub inertia: Matrix3<f64>,
-    pub colliders: Vec<ColliderSpec>,
-}
-
-/// Where a URDF link sits: on which body, at which pose.
-#[derive(Clone, Debug)]
-pub struct LinkFrame {
-    pub name: String,
-    pub body: usize,
-    /// The link frame in its body's frame.
-    pub pose: Isometry3<f64>,
-    /// Whether the link declared an `<inertial>` (false: a massless frame).
-    pub has_inertial: bool,
-    /// The link's own mass (0 for a massless frame).
-    pub mass: f64,
-}
-
-/// A validated arm: bodies, movable joints in parent-before-child order, and every link's frame.
-#[derive(Clone, Debug)]
-pub struct ArmModel {
-    pub name: String,
-    /// The file the model came from (for messages).
-    pub source: PathBuf,
-    /// Body 0 is the root, fixed to the world.
-    pub bodies: Vec<BodySpec>,
-    pub joints: Vec<JointSpec>,
-    pub links: Vec<LinkFrame>,
-    /// Things skipped on the way (meshes, ...), for the user to see.
-    pub warnings: Vec<String>,
-}
-
-impl ArmModel {
-    /// Total mass of the moving bodies plus the root.
-    pub fn total_mass(&self) -> f64 {
-        self.bodies.iter().map(|b| b.mass).sum()
-    }
-
-    /// The frame of a link by name.
-    pub fn link(&self, name: &str) -> Option<&LinkFrame> {
-        self.links.iter().find(|l| l.name == name)
-    }
-
-    /// The error for an end-effector link that does not exist.
-    pub fn unknown_link_error(&self, name: &str) -> PlantError {
-        PlantError::UnknownEndEffector {
-            path: self.source.clone(),
-            link: name.to_string(),
-            available: self
-                .links
-                .iter()
-                .map(|l| l.name.as_str())
-                .collect::<Vec<_>>()
-                .join(", "),
-        }
-    }
-}
 
 /// How a URDF is read.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -179,25 +36,25 @@ pub struct UrdfOptions {
 }
 
 /// Reads and validates a URDF file.
-pub fn load_urdf(path: &Path) -> Result<ArmModel, PlantError> {
+pub fn load_urdf(path: &Path) -> Result<ArmModel, ArmError> {
     load_urdf_with(path, &UrdfOptions::default())
 }
 
 /// Reads and validates a URDF file with options.
-pub fn load_urdf_with(path: &Path, options: &UrdfOptions) -> Result<ArmModel, PlantError> {
+pub fn load_urdf_with(path: &Path, options: &UrdfOptions) -> Result<ArmModel, ArmError> {
     let bytes =
         crate::fsio::read_bounded(path, crate::fsio::MAX_URDF_BYTES).map_err(|e| match e {
-            crate::fsio::FsError::Read { path, source } => PlantError::Unreadable { path, source },
-            other => PlantError::File(other),
+            crate::fsio::FsError::Read { path, source } => ArmError::Unreadable { path, source },
+            other => ArmError::File(other),
         })?;
-    let text = String::from_utf8(bytes).map_err(|_| PlantError::NotText {
+    let text = String::from_utf8(bytes).map_err(|_| ArmError::NotText {
         path: path.to_path_buf(),
     })?;
     parse_urdf_with(&text, path, options)
 }
 
 /// Parses and validates URDF text; `path` is used in messages only.
-pub fn parse_urdf(text: &str, path: &Path) -> Result<ArmModel, PlantError> {
+pub fn parse_urdf(text: &str, path: &Path) -> Result<ArmModel, ArmError> {
     parse_urdf_with(text, path, &UrdfOptions::default())
 }
 
@@ -206,14 +63,14 @@ pub fn parse_urdf_with(
     text: &str,
     path: &Path,
     options: &UrdfOptions,
-) -> Result<ArmModel, PlantError> {
+) -> Result<ArmModel, ArmError> {
     if text.trim().is_empty() {
-        return Err(PlantError::Empty {
+        return Err(ArmError::Empty {
             path: path.to_path_buf(),
         });
     }
     if text.contains('\0') {
-        return Err(PlantError::NotText {
+        return Err(ArmError::NotText {
             path: path.to_path_buf(),
         });
     }
@@ -221,12 +78,12 @@ pub fn parse_urdf_with(
     // urdf-rs is not known to panic once the depth is bounded; a panic is still turned into an
     // error rather than trusted never to happen.
     let parsed = std::panic::catch_unwind(|| urdf_rs::read_from_string(text)).map_err(|_| {
-        PlantError::Xml {
+        ArmError::Xml {
             path: path.to_path_buf(),
             message: "the URDF parser failed on this file".into(),
         }
     })?;
-    let robot = parsed.map_err(|e| PlantError::Xml {
+    let robot = parsed.map_err(|e| ArmError::Xml {
         path: path.to_path_buf(),
         message: e.to_string(),
     })?;
@@ -265,10 +122,10 @@ fn line_of(text: &str, byte: usize) -> usize {
 }
 
 /// The streaming pass: depth bound, numeric attributes, `<inertial>` presence.
-pub(crate) fn scan(text: &str, path: &Path) -> Result<Scan, PlantError> {
+pub(crate) fn scan(text: &str, path: &Path) -> Result<Scan, ArmError> {
     use quick_xml::events::Event;
 
-    let xml_error = |message: String| PlantError::Xml {
+    let xml_error = |message: String| ArmError::Xml {
         path: path.to_path_buf(),
         message,
     };
@@ -302,7 +159,7 @@ pub(crate) fn scan(text: &str, path: &Path) -> Result<Scan, PlantError> {
         let name = element.name().as_ref().to_string();
         let depth = stack.len() + 1;
         if depth > MAX_XML_DEPTH {
-            return Err(PlantError::TooDeep {
+            return Err(ArmError::TooDeep {
                 path: path.to_path_buf(),
                 depth,
                 limit: MAX_XML_DEPTH,
@@ -359,7 +216,7 @@ pub(crate) fn scan(text: &str, path: &Path) -> Result<Scan, PlantError> {
             }
             for (key, value) in &attributes {
                 if let Some(count) = numeric_attribute(&name, key) {
-                    check_numbers(value, count).map_err(|expected| PlantError::BadNumber {
+                    check_numbers(value, count).map_err(|expected| ArmError::BadNumber {
                         path: path.to_path_buf(),
                         element: format!(
                             "{kind} '{owner_name}' <{}>",
@@ -430,8 +287,8 @@ fn check_inertia(
     link: &str,
     path: &Path,
     balance: bool,
-) -> Result<(Matrix3<f64>, Option<String>), PlantError> {
-    let bad = |reason: String| PlantError::BadInertia {
+) -> Result<(Matrix3<f64>, Option<String>), ArmError> {
+    let bad = |reason: String| ArmError::BadInertia {
         path: path.to_path_buf(),
         link: link.to_string(),
         reason,
@@ -479,7 +336,7 @@ pub(crate) fn build_model(
     scanned: &Scan,
     path: &Path,
     options: &UrdfOptions,
-) -> Result<ArmModel, PlantError> {
+) -> Result<ArmModel, ArmError> {
     let p = || path.to_path_buf();
     let mut warnings = Vec::new();
 
@@ -487,7 +344,7 @@ pub(crate) fn build_model(
     let mut link_index: HashMap<&str, usize> = HashMap::new();
     for (i, link) in robot.links.iter().enumerate() {
         if link_index.insert(link.name.as_str(), i).is_some() {
-            return Err(PlantError::DuplicateName {
+            return Err(ArmError::DuplicateName {
                 path: p(),
                 kind: "link",
                 name: link.name.clone(),
@@ -497,7 +354,7 @@ pub(crate) fn build_model(
     let mut joint_names = HashSet::new();
     for joint in &robot.joints {
         if !joint_names.insert(joint.name.as_str()) {
-            return Err(PlantError::DuplicateName {
+            return Err(ArmError::DuplicateName {
                 path: p(),
                 kind: "joint",
                 name: joint.name.clone(),
@@ -505,7 +362,7 @@ pub(crate) fn build_model(
         }
     }
     if robot.links.is_empty() {
-        return Err(PlantError::NoSingleRoot {
+        return Err(ArmError::NoSingleRoot {
             path: p(),
             roots_found: 0,
             roots: "no <link> at all".into(),
@@ -520,7 +377,7 @@ pub(crate) fn build_model(
             link_index
                 .get(name)
                 .copied()
-                .ok_or_else(|| PlantError::UnknownLink {
+                .ok_or_else(|| ArmError::UnknownLink {
                     path: p(),
                     joint: joint.name.clone(),
                     role,
@@ -530,13 +387,13 @@ pub(crate) fn build_model(
         let parent = find(&joint.parent.link, "parent")?;
         let child = find(&joint.child.link, "child")?;
         if parent == child {
-            return Err(PlantError::Cycle {
+            return Err(ArmError::Cycle {
                 path: p(),
                 joint: joint.name.clone(),
             });
         }
         if let Some(first) = parent_joint[child] {
-            return Err(PlantError::MultipleParents {
+            return Err(ArmError::MultipleParents {
                 path: p(),
                 link: joint.child.link.clone(),
                 first: robot.joints[first].name.clone(),
@@ -553,7 +410,7 @@ pub(crate) fn build_model(
         [single] => *single,
         [] => {
             // Every link has a parent: the joints close a cycle.
-            return Err(PlantError::Cycle {
+            return Err(ArmError::Cycle {
                 path: p(),
                 joint: robot.joints[0].name.clone(),
             });
@@ -567,13 +424,13 @@ pub(crate) fn build_model(
                 .collect();
             if trees.len() == 1 {
                 let lone = many.iter().copied().find(|&l| l != trees[0]).unwrap_or(0);
-                return Err(PlantError::Disconnected {
+                return Err(ArmError::Disconnected {
                     path: p(),
                     link: robot.links[lone].name.clone(),
                     root: robot.links[trees[0]].name.clone(),
                 });
             }
-            return Err(PlantError::NoSingleRoot {
+            return Err(ArmError::NoSingleRoot {
                 path: p(),
                 roots_found: many.len(),
                 roots: many
@@ -604,7 +461,7 @@ pub(crate) fn build_model(
                 urdf_rs::JointType::Continuous => Some(JointKind::Continuous),
                 urdf_rs::JointType::Prismatic => Some(JointKind::Prismatic),
                 ref other => {
-                    return Err(PlantError::UnsupportedJoint {
+                    return Err(ArmError::UnsupportedJoint {
                         path: p(),
                         joint: joint.name.clone(),
                         kind: format!("{other:?}").to_lowercase(),
@@ -618,7 +475,7 @@ pub(crate) fn build_model(
                 }
                 Some(kind) => {
                     let axis = Vector3::from(joint.axis.xyz.0);
-                    let axis = Unit::try_new(axis, 1e-12).ok_or_else(|| PlantError::ZeroAxis {
+                    let axis = Unit::try_new(axis, 1e-12).ok_or_else(|| ArmError::ZeroAxis {
                         path: p(),
                         joint: joint.name.clone(),
                     })?;
@@ -627,7 +484,7 @@ pub(crate) fn build_model(
                     let limits = match kind {
                         JointKind::Continuous => None,
                         _ if lim.lower > lim.upper => {
-                            return Err(PlantError::BadLimit {
+                            return Err(ArmError::BadLimit {
                                 path: p(),
                                 joint: joint.name.clone(),
                                 lower: lim.lower,
@@ -660,7 +517,7 @@ pub(crate) fn build_model(
                         ("<limit>", "velocity", lim.velocity),
                     ] {
                         if value < 0.0 {
-                            return Err(PlantError::Negative {
+                            return Err(ArmError::Negative {
                                 path: p(),
                                 joint: joint.name.clone(),
                                 element,
@@ -694,10 +551,10 @@ pub(crate) fn build_model(
             || robot.links[unreached].name.clone(),
             |j| robot.joints[j].name.clone(),
         );
-        return Err(PlantError::Cycle { path: p(), joint });
+        return Err(ArmError::Cycle { path: p(), joint });
     }
     if joints.is_empty() {
-        return Err(PlantError::NoMovableJoint { path: p() });
+        return Err(ArmError::NoMovableJoint { path: p() });
     }
     for joint in &robot.joints {
         if joint.joint_type != urdf_rs::JointType::Fixed && joint.mimic.is_some() {
@@ -711,9 +568,9 @@ pub(crate) fn build_model(
     // Mass properties and colliders per body; link frames.
     let mut links = Vec::with_capacity(robot.links.len());
     let mut bodies = Vec::with_capacity(body_links.len());
+    let mut colliders = Vec::new();
     for (b, members) in body_links.iter().enumerate() {
         let mut parts: Vec<(f64, Vector3<f64>, Matrix3<f64>)> = Vec::new();
-        let mut colliders = Vec::new();
         for &l in members {
             let link = &robot.links[l];
             let (_, pose) = link_body[l].expect("every link is placed");
@@ -721,7 +578,7 @@ pub(crate) fn build_model(
             let mut own_mass = 0.0;
             let mass = link.inertial.mass.value;
             if has_inertial && !(mass.is_finite() && mass >= 0.0) {
-                return Err(PlantError::BadMass {
+                return Err(ArmError::BadMass {
                     path: p(),
                     link: link.name.clone(),
                     mass,
@@ -796,11 +653,7 @@ pub(crate) fn build_model(
                     ));
                     continue;
                 }
-                colliders.push(ColliderSpec {
-                    link: link.name.clone(),
-                    shape,
-                    pose: shape_pose,
-                });
+                colliders.push(ColliderSpec::new(link.name.clone(), b, shape, shape_pose));
             }
             links.push(LinkFrame {
                 name: link.name.clone(),
@@ -826,7 +679,7 @@ pub(crate) fn build_model(
             (Vector3::zeros(), Matrix3::zeros())
         };
         if b > 0 && mass <= 0.0 {
-            return Err(PlantError::MasslessBody {
+            return Err(ArmError::MasslessBody {
                 path: p(),
                 link: robot.links[body_top[b]].name.clone(),
             });
@@ -836,7 +689,6 @@ pub(crate) fn build_model(
             mass,
             com,
             inertia,
-            colliders,
         });
     }
     // Keep links in file order for listing.
@@ -848,6 +700,7 @@ pub(crate) fn build_model(
         bodies,
         joints,
         links,
+        colliders,
         warnings,
     })
 }
@@ -866,7 +719,7 @@ fn sanitize_mesh_name(filename: &str) -> String {
 mod tests {
     use super::*;
 
-    fn parse(text: &str) -> Result<ArmModel, PlantError> {
+    fn parse(text: &str) -> Result<ArmModel, ArmError> {
         parse_urdf(text, Path::new("test.urdf"))
     }
 
@@ -893,7 +746,7 @@ mod tests {
         assert_eq!(ee.body, 1);
         assert!((ee.pose.translation.vector - Vector3::new(1.0, 0.0, 0.0)).norm() < 1e-15);
         assert!((m.bodies[1].mass - 2.0).abs() < 1e-15);
-        assert_eq!(m.bodies[1].colliders.len(), 1);
+        assert_eq!(m.colliders.iter().filter(|c| c.body == 1).count(), 1);
     }
 
     #[test]

@@ -1,14 +1,14 @@
-//! Errors of the plant stage: loading a URDF and building the simulated arm.
+//! Errors of the arm model: reading a URDF, validating it, naming links.
 
 use std::path::PathBuf;
 
-/// Everything that can go wrong while reading a URDF or building an [`crate::plant::Arm`].
+/// Everything that can go wrong while reading a URDF into an [`crate::arm::ArmModel`].
 ///
 /// Every variant names the file and the offending element, so a message can say exactly what is
 /// wrong where.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
-pub enum PlantError {
+pub enum ArmError {
     #[error("{path}: cannot read the file")]
     Unreadable {
         path: PathBuf,
@@ -121,15 +121,9 @@ pub enum PlantError {
         link: String,
         available: String,
     },
-    #[error("{path}: {field}: {message}")]
-    BadOption {
-        path: PathBuf,
-        field: String,
-        message: String,
-    },
 }
 
-impl PlantError {
+impl ArmError {
     /// The file the error is about.
     pub fn path(&self) -> &std::path::Path {
         match self {
@@ -154,8 +148,7 @@ impl PlantError {
             | Self::UnsupportedJoint { path, .. }
             | Self::MasslessBody { path, .. }
             | Self::NoMovableJoint { path }
-            | Self::UnknownEndEffector { path, .. }
-            | Self::BadOption { path, .. } => path,
+            | Self::UnknownEndEffector { path, .. } => path,
         }
     }
 }

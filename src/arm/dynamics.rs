@@ -1,0 +1,399 @@
+//! Rigid-body dynamics of an [`ArmModel`] in reduced coordinates: the joint-space mass matrix
+//! M(q), the bias torques C(q, qd) qd + G(q), and the forward dynamics
+//! qdd = M^-1 (tau - bias - D qd - friction). The articulated plant integrates them; the
+//! estimators that carry a model of the arm predict with them (their model, which may be erred); `aift init` reads M and G from them.
+//!
+//! Written by hand because rapier keeps its multibody dynamics crate-private (mass matrix,
+//! accelerations and integration are `pub(crate)` in rapier 0.36), and no maintained Rust crate
+//! provides URDF-tree dynamics. The algorithms are textbook (Featherstone, *Rigid Body Dynamics
+//! Algorithms*, 2008), in absolute (world-frame) spatial coordinates, where a joint's motion
+//! subspace, the bodies' spatial inertias and the composite inertias need no frame changes:
+//!
+//! - spatial velocity V = (omega, v_O) with v_O the velocity of the body point at the world
+//!   origin; a revolute joint at point p with world axis a has S = (a, p x a), a prismatic one
+//!   S = (0, a);
+//! - spatial inertia of a body of mass m, centre c and rotational inertia I_c about it:
+//!   `[[I_c - m [c]x^2, m [c]x], [-m [c]x, m 1]]`;
+//! - mass matrix by the composite-rigid-body algorithm, M_ij = S_i' I^c_(deeper of i, j) S_j on a
+//!   branch;
+//! - bias torques C(q, qd) qd + G(q) by recursive Newton-Euler with qdd = 0 and the base
+//!   accelerating at -g: A_b = A_parent + crm(V_b) S qd, F_b = I_b A_b + crf(V_b) I_b V_b.
+//!
+//! As rapier keeps parameters, state and scratch apart, so does this module: the model is an
+//! `Arc<ArmModel>` (never changed), the state (q, qd) is the caller's, and [`Dynamics`] is the
+//! workspace the algorithms fill, reused every call without allocating.
+
+use std::sync::Arc;
+
+use nalgebra::{DMatrix, DVector, Isometry3, Matrix3, Matrix6, Vector3, Vector6};
+
+use super::{ArmModel, JointKind, kinematics};
+
+fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
+    Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
+}
+
+/// crm(V) x: the motion cross product.
+fn cross_motion(v: &Vector6<f64>, x: &Vector6<f64>) -> Vector6<f64> {
+    let (w, vo) = (v.fixed_rows::<3>(0), v.fixed_rows::<3>(3));
+    let (xw, xv) = (x.fixed_rows::<3>(0), x.fixed_rows::<3>(3));
+    let a = w.cross(&xw);
+    let b = vo.cross(&xw) + w.cross(&xv);
+    Vector6::new(a.x, a.y, a.z, b.x, b.y, b.z)
+}
+
+/// crf(V) f: the force cross product.
+fn cross_force(v: &Vector6<f64>, f: &Vector6<f64>) -> Vector6<f64> {
+    let (w, vo) = (v.fixed_rows::<3>(0), v.fixed_rows::<3>(3));
+    let (n, fl) = (f.fixed_rows::<3>(0), f.fixed_rows::<3>(3));
+    let a = w.cross(&n) + vo.cross(&fl);
+    let b = w.cross(&fl);
+    Vector6::new(a.x, a.y, a.z, b.x, b.y, b.z)
+}
+
+/// The velocity (rad/s or m/s) below which the model's Coulomb friction fades linearly to zero:
+/// F sign(qd) would be discontinuous at rest, where a stuck joint's friction is whatever holds it;
+/// a linear ramp over 0.01 rad/s is the usual smooth stand-in of model-based observers.
+pub const FRICTION_RAMP: f64 = 0.01;
+
+/// How the forward dynamics treat the joints' Coulomb friction.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Friction {
+    /// F ramp(qd), faded to zero below [`FRICTION_RAMP`].
+    Smooth,
+    /// Left out (the caller applies it, as the articulated plant's impulses do).
+    Excluded,
+}
+
+/// The workspace of the dynamics algorithms for one arm model under gravity g.
+#[derive(Clone, Debug)]
+pub struct Dynamics {
+    model: Arc<ArmModel>,
+    gravity: Vector3<f64>,
+    /// Joint index whose child is each body (None for the root).
+    parent_joint: Vec<Option<usize>>,
+    poses: Vec<Isometry3<f64>>,
+    s: Vec<Vector6<f64>>,
+    inertia: Vec<Matrix6<f64>>,
+    composite: Vec<Matrix6<f64>>,
+    v: Vec<Vector6<f64>>,
+    a: Vec<Vector6<f64>>,
+    f: Vec<Vector6<f64>>,
+    m: DMatrix<f64>,
+    bias: DVector<f64>,
+    rhs: DVector<f64>,
+    factor: DMatrix<f64>,
+}
+
+impl Dynamics {
+    /// The dynamics of `model` under gravity `gravity` (m/s^2, world frame), at q = 0.
+    pub fn new(model: Arc<ArmModel>, gravity: [f64; 3]) -> Self {
+        let nb = model.bodies.len();
+        let n = model.joints.len();
+        let mut parent_joint = vec![None; nb];
+        for (i, j) in model.joints.iter().enumerate() {
+            parent_joint[j.child_body] = Some(i);
+        }
+        let mut d = Self {
+            model,
+            gravity: Vector3::from(gravity),
+            parent_joint,
+            poses: vec![Isometry3::identity(); nb],
+            s: vec![Vector6::zeros(); n],
+            inertia: vec![Matrix6::zeros(); nb],
+            composite: vec![Matrix6::zeros(); nb],
+            v: vec![Vector6::zeros(); nb],
+            a: vec![Vector6::zeros(); nb],
+            f: vec![Vector6::zeros(); nb],
+            m: DMatrix::zeros(n, n),
+            bias: DVector::zeros(n),
+            rhs: DVector::zeros(n),
+            factor: DMatrix::zeros(n, n),
+        };
+        d.set_configuration(&vec![0.0; n]);
+        d
+    }
+
+    pub fn model(&self) -> &Arc<ArmModel> {
+        &self.model
+    }
+
+    pub fn n_joints(&self) -> usize {
+        self.model.joints.len()
+    }
+
+    pub fn gravity(&self) -> &Vector3<f64> {
+        &self.gravity
+    }
+
+    /// Poses, motion subspaces and spatial inertias at joint positions q.
+    pub fn set_configuration(&mut self, q: &[f64]) {
+        kinematics::forward(&self.model, q, &mut self.poses);
+        for (i, j) in self.model.joints.iter().enumerate() {
+            let pose = &self.poses[j.child_body];
+            let a = pose.rotation * j.axis.into_inner();
+            let p = pose.translation.vector;
+            self.s[i] = match j.kind {
+                JointKind::Prismatic => Vector6::new(0.0, 0.0, 0.0, a.x, a.y, a.z),
+                _ => {
+                    let pa = p.cross(&a);
+                    Vector6::new(a.x, a.y, a.z, pa.x, pa.y, pa.z)
+                }
+            };
+        }
+        for (b, body) in self.model.bodies.iter().enumerate() {
+            let pose = &self.poses[b];
+            let r = pose.rotation.to_rotation_matrix();
+            let c = pose.translation.vector + r * body.com;
+            let ic = r.matrix() * body.inertia * r.matrix().transpose();
+            let cx = skew(&c);
+            let m = body.mass;
+            let mut i6 = Matrix6::zeros();
+            i6.fixed_view_mut::<3, 3>(0, 0)
+                .copy_from(&(ic - cx * cx * m));
+            i6.fixed_view_mut::<3, 3>(0, 3).copy_from(&(cx * m));
+            i6.fixed_view_mut::<3, 3>(3, 0).copy_from(&(-cx * m));
+            i6.fixed_view_mut::<3, 3>(3, 3)
+                .copy_from(&(Matrix3::identity() * m));
+            self.inertia[b] = i6;
+        }
+    }
+
+    /// The bodies' world poses at the configuration last set.
+    pub fn poses(&self) -> &[Isometry3<f64>] {
+        &self.poses
+    }
+
+    /// M(q) and the bias C(q, qd) qd + G(q) at the configuration last set and velocities `qd`.
+    pub fn compute(&mut self, qd: &[f64]) {
+        let n = self.n_joints();
+        let joints = &self.model.joints;
+        // Composite inertias, leaves first (children come after parents in joint order).
+        self.composite.copy_from_slice(&self.inertia);
+        for j in joints.iter().rev() {
+            let c = self.composite[j.child_body];
+            self.composite[j.parent_body] += c;
+        }
+        self.m.fill(0.0);
+        for i in 0..n {
+            let f = self.composite[joints[i].child_body] * self.s[i];
+            self.m[(i, i)] = self.s[i].dot(&f);
+            // Walk up the ancestors of joint i.
+            let mut body = joints[i].parent_body;
+            while let Some(k) = self.parent_joint[body] {
+                let v = self.s[k].dot(&f);
+                self.m[(i, k)] = v;
+                self.m[(k, i)] = v;
+                body = joints[k].parent_body;
+            }
+        }
+        // Recursive Newton-Euler, qdd = 0, base accelerating at -g.
+        let g = &self.gravity;
+        self.v[0] = Vector6::zeros();
+        self.a[0] = Vector6::new(0.0, 0.0, 0.0, -g.x, -g.y, -g.z);
+        for i in 0..n {
+            let j = &joints[i];
+            let vs = self.s[i] * qd[i];
+            let v = self.v[j.parent_body] + vs;
+            self.a[j.child_body] = self.a[j.parent_body] + cross_motion(&v, &vs);
+            self.v[j.child_body] = v;
+        }
+        for b in 0..self.model.bodies.len() {
+            let iv = self.inertia[b] * self.v[b];
+            self.f[b] = self.inertia[b] * self.a[b] + cross_force(&self.v[b], &iv);
+        }
+        for i in (0..n).rev() {
+            let j = &joints[i];
+            self.bias[i] = self.s[i].dot(&self.f[j.child_body]);
+            let fc = self.f[j.child_body];
+            self.f[j.parent_body] += fc;
+        }
+    }
+
+    /// The mass matrix of the last [`Self::compute`].
+    pub fn mass_matrix(&self) -> &DMatrix<f64> {
+        &self.m
+    }
+
+    /// The bias torques C(q, qd) qd + G(q) of the last [`Self::compute`].
+    pub fn bias(&self) -> &DVector<f64> {
+        &self.bias
+    }
+
+    /// M(q) and the gravity torques G(q) at rest at q (allocates the copies; for `init` and
+    /// tests).
+    pub fn mass_matrix_and_gravity(&mut self, q: &[f64]) -> (DMatrix<f64>, Vec<f64>) {
+        self.set_configuration(q);
+        self.compute(&vec![0.0; q.len()]);
+        (self.m.clone(), self.bias.iter().copied().collect())
+    }
+
+    /// The forward dynamics at (q, qd) under joint torques u: qdd = M^-1 (u - bias - D qd -
+    /// F ramp(qd)) into `out`, with the model's viscous damping D and Coulomb friction F (faded
+    /// to zero below [`FRICTION_RAMP`]); without allocating. False (and `out` untouched) if M is
+    /// singular.
+    pub fn forward_dynamics(&mut self, q: &[f64], qd: &[f64], u: &[f64], out: &mut [f64]) -> bool {
+        self.set_configuration(q);
+        self.forward_dynamics_here(qd, u, Friction::Smooth, out)
+    }
+
+    /// As [`Self::forward_dynamics`] at the configuration last set; `friction` says whether the
+    /// Coulomb friction enters (an integrator that applies it as impulses leaves it out).
+    pub fn forward_dynamics_here(
+        &mut self,
+        qd: &[f64],
+        u: &[f64],
+        friction: Friction,
+        out: &mut [f64],
+    ) -> bool {
+        self.compute(qd);
+        for (i, joint) in self.model.joints.iter().enumerate() {
+            self.rhs[i] = u[i] - self.bias[i] - joint.damping * qd[i];
+            if friction == Friction::Smooth && joint.friction > 0.0 {
+                self.rhs[i] -= joint.friction * (qd[i] / FRICTION_RAMP).clamp(-1.0, 1.0);
+            }
+        }
+        if !self.solve_damped(0.0) {
+            return false;
+        }
+        out.copy_from_slice(self.rhs.as_slice());
+        true
+    }
+
+    /// The right-hand side [`Self::solve_damped`] solves in place.
+    pub fn rhs_mut(&mut self) -> &mut DVector<f64> {
+        &mut self.rhs
+    }
+
+    /// Solves (M + h D) x = rhs in place ([`Self::rhs_mut`] holds the right-hand side) with
+    /// the mass matrix of the last [`Self::compute`], without allocating; false if singular.
+    pub fn solve_damped(&mut self, h: f64) -> bool {
+        let n = self.n_joints();
+        let mut storage = std::mem::replace(&mut self.factor, DMatrix::zeros(0, 0));
+        storage.copy_from(&self.m);
+        for (i, joint) in self.model.joints.iter().enumerate() {
+            storage[(i, i)] += h * joint.damping;
+        }
+        let Some(chol) = nalgebra::linalg::Cholesky::new(storage) else {
+            self.factor = DMatrix::zeros(n, n);
+            return false;
+        };
+        chol.solve_mut(&mut self.rhs);
+        self.factor = chol.unpack_dirty();
+        true
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::Path;
+
+    const TWO_LINK: &str = r#"<robot name="r">
+      <link name="world"/>
+      <joint name="j1" type="continuous"><parent link="world"/><child link="l1"/><axis xyz="0 -1 0"/></joint>
+      <link name="l1"><inertial><origin xyz="0.5 0 0"/><mass value="2"/>
+          <inertia ixx="0.01" ixy="0" ixz="0" iyy="0.3" iyz="0" izz="0.3"/></inertial></link>
+      <joint name="j2" type="continuous"><parent link="l1"/><child link="l2"/><origin xyz="1 0 0"/><axis xyz="0 -1 0"/></joint>
+      <link name="l2"><inertial><origin xyz="0.4 0 0"/><mass value="1.5"/>
+          <inertia ixx="0.01" ixy="0" ixz="0" iyy="0.2" iyz="0" izz="0.2"/></inertial></link>
+    </robot>"#;
+
+    fn two_link() -> Dynamics {
+        let model = crate::arm::parse_urdf(TWO_LINK, Path::new("t.urdf")).unwrap();
+        Dynamics::new(Arc::new(model), [0.0, 0.0, -9.81])
+    }
+
+    /// The closed-form planar two-link mass matrix and gravity (angles from +x, up positive).
+    fn closed_form(q: [f64; 2]) -> ([[f64; 2]; 2], [f64; 2]) {
+        let (l1, lc1, lc2, m1, m2, i1, i2, g) = (1.0, 0.5, 0.4, 2.0, 1.5, 0.3, 0.2, 9.81);
+        let c2 = q[1].cos();
+        let m11 = i1 + i2 + m1 * lc1 * lc1 + m2 * (l1 * l1 + lc2 * lc2 + 2.0 * l1 * lc2 * c2);
+        let m12 = i2 + m2 * (lc2 * lc2 + l1 * lc2 * c2);
+        let m22 = i2 + m2 * lc2 * lc2;
+        let (c1, c12) = (q[0].cos(), (q[0] + q[1]).cos());
+        let g1 = g * (m1 * lc1 * c1 + m2 * (lc2 * c12 + l1 * c1));
+        let g2 = g * m2 * lc2 * c12;
+        ([[m11, m12], [m12, m22]], [g1, g2])
+    }
+
+    #[test]
+    fn mass_matrix_and_gravity_match_the_closed_form() {
+        let mut d = two_link();
+        for q in [[0.3, -0.7], [-1.2, 1.1], [2.0, 0.0]] {
+            let (m, bias) = d.mass_matrix_and_gravity(&q);
+            let (mr, gr) = closed_form(q);
+            for r in 0..2 {
+                assert!((bias[r] - gr[r]).abs() < 1e-12, "{bias:?} vs {gr:?}");
+                for c in 0..2 {
+                    assert!((m[(r, c)] - mr[r][c]).abs() < 1e-12, "{m} vs {mr:?}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn coriolis_terms_match_the_closed_form() {
+        let model = crate::arm::parse_urdf(TWO_LINK, Path::new("t.urdf")).unwrap();
+        let mut d = Dynamics::new(Arc::new(model), [0.0; 3]);
+        let (q, qd) = ([0.4, 0.9], [1.3, -0.8]);
+        d.set_configuration(&q);
+        d.compute(&qd);
+        // C(q, qd) qd for the planar two-link arm: h = m2 l1 lc2 sin q2.
+        let h = 1.5 * 1.0 * 0.4 * q[1].sin();
+        let expected = [
+            -h * qd[1] * qd[1] - 2.0 * h * qd[0] * qd[1],
+            h * qd[0] * qd[0],
+        ];
+        for r in 0..2 {
+            assert!(
+                (d.bias()[r] - expected[r]).abs() < 1e-12,
+                "{:?} vs {expected:?}",
+                d.bias()
+            );
+        }
+    }
+
+    /// The bias is the gradient structure's check: with the kinetic energy T = qd' M qd / 2,
+    /// C(q, qd) qd = dM/dt qd - dT/dq (Lagrange), both sides by central finite differences of M.
+    #[test]
+    fn coriolis_terms_match_finite_differences_of_the_mass_matrix_on_the_7_dof_arm() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("urdf/panda_7dof.urdf");
+        let model = Arc::new(crate::arm::load_urdf(&path).unwrap());
+        let mut d = Dynamics::new(model, [0.0; 3]);
+        let q = [0.3, -0.5, 0.2, -1.9, 0.4, 1.6, -0.7];
+        let qd = [0.8, -0.4, 1.1, 0.5, -1.3, 0.9, 2.0];
+        let n = 7;
+        d.set_configuration(&q);
+        d.compute(&qd);
+        let bias: Vec<f64> = d.bias().iter().copied().collect();
+        let h = 1e-6;
+        let mut m_at = |q: &[f64]| {
+            d.set_configuration(q);
+            d.compute(&[0.0; 7]);
+            d.mass_matrix().clone()
+        };
+        let mut dm: Vec<DMatrix<f64>> = Vec::new();
+        for k in 0..n {
+            let (mut plus, mut minus) = (q, q);
+            plus[k] += h;
+            minus[k] -= h;
+            dm.push((m_at(&plus) - m_at(&minus)) / (2.0 * h));
+        }
+        let qdv = DVector::from_column_slice(&qd);
+        let mdot = dm
+            .iter()
+            .zip(&qd)
+            .fold(DMatrix::zeros(n, n), |acc, (d, v)| acc + d * *v);
+        let first = &mdot * &qdv;
+        for i in 0..n {
+            let dt_dq = 0.5 * (qdv.transpose() * &dm[i] * &qdv)[(0, 0)];
+            let expected = first[i] - dt_dq;
+            assert!(
+                (bias[i] - expected).abs() < 1e-6 * (1.0 + expected.abs()),
+                "joint {i}: {} against {expected}",
+                bias[i]
+            );
+        }
+    }
+}

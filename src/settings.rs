@@ -1,0 +1,29 @@
+//! What every settings type's `validate` returns: the offending field (a dotted key relative to
+//! the settings' own table) and why. The scenario puts its section in front (`plant.articulated.`
+//! + `substeps`) and the file name around it ([`crate::scenario::ScenarioError::Invalid`]).
+
+/// A setting that fails validation: its key and why.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("`{field}` {message}")]
+pub struct SettingError {
+    /// The key, relative to the settings' table (`substeps`, `gains.kp`).
+    pub field: String,
+    pub message: String,
+}
+
+impl SettingError {
+    pub fn new(field: impl Into<String>, message: impl Into<String>) -> Self {
+        Self {
+            field: field.into(),
+            message: message.into(),
+        }
+    }
+
+    /// The same error with its key under `section` (`section.field`).
+    pub fn within(mut self, section: &str) -> Self {
+        if !section.is_empty() {
+            self.field = format!("{section}.{}", self.field);
+        }
+        self
+    }
+}
