@@ -1,6 +1,6 @@
 //! Every method once on a scenario, each against the oracle (20-run calibration for speed):
 //! `cargo run --release --example compare_methods -- [SCENARIO] [SEED] [KEY=VALUE ...]`
-use aift::scenario::{LoadedScenario, Method, NoObserver, RunSetup, calibrate::calibrate, run};
+use aift::scenario::{LoadedScenario, Method, Run, RunSetup, calibrate::calibrate};
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -28,7 +28,11 @@ fn main() {
         if method.needs_detector() && cal.is_none() {
             continue;
         }
-        let r = run(&setup, method, seed, cal.as_ref(), &mut NoObserver).unwrap();
+        let r = Run::new(&setup, method)
+            .seed(seed)
+            .calibration(cal.as_ref())
+            .execute()
+            .unwrap();
         println!(
             "{:14} {:9} mse {:?} final {:?} det {:?} iso {:?} health {:?} min5 {:?} {:.0} t/s",
             method.name(),

@@ -8,7 +8,7 @@ use std::path::PathBuf;
 
 use aift::fsio::{OutputKind, Staged};
 use aift::report::run_files;
-use aift::scenario::{LoadedScenario, Method, RunSetup, calibrate};
+use aift::scenario::{LoadedScenario, Method, Run, RunSetup, calibrate};
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -35,13 +35,9 @@ fn main() -> anyhow::Result<()> {
     } else {
         None
     };
-    let result = run_files::run_into(
-        staged,
-        &setup,
-        method,
-        setup.scenario().seed,
-        calibration.as_ref(),
-    )?;
+    let run = Run::new(&setup, method).calibration(calibration.as_ref());
+    let result = run_files::run_staged(&staged, run)?;
+    staged.commit()?;
     println!(
         "{method}: {} | belief MSE per joint {:?} | final error {:.4} rad | files in {}",
         result.outcome.name(),

@@ -13,7 +13,7 @@
 
 use aift::scenario::calibrate::calibrate;
 use aift::scenario::table::run_table;
-use aift::scenario::{LoadedScenario, Method, RunSetup, TrajectoryRecorder, run};
+use aift::scenario::{LoadedScenario, Method, ObserverMode, Run, RunSetup, TrajectoryRecorder};
 
 fn setup(file: &str, overrides: &[&str]) -> RunSetup {
     let root = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"));
@@ -103,20 +103,20 @@ fn update_scheme(seeds: &[u64]) {
         seeds,
     );
     for kappa in ["200.0", "1e-5", "1e-6"] {
-        let k = format!("controller.kappa_mu={kappa}");
+        let k = format!("belief.kappa_mu={kappa}");
         rows(
             &format!("gradient kappa_mu={kappa}, physical precisions"),
-            &setup(ENC, &["controller.update=\"gradient\"", &k]),
+            &setup(ENC, &["belief.update=\"gradient\"", &k]),
             &m,
             seeds,
         );
     }
     let unit = [
-        "controller.update=\"gradient\"",
-        "controller.kappa_mu=200.0",
-        "controller.prediction=\"paper\"",
-        "controller.prior_position_precision=1.0",
-        "controller.prior_velocity_precision=1.0",
+        "belief.update=\"gradient\"",
+        "belief.kappa_mu=200.0",
+        "belief.prediction=\"paper\"",
+        "belief.prior_position_precision=1.0",
+        "belief.prior_velocity_precision=1.0",
         "precision.nominal=[1.0, 1.0, 1.0, 1.0, 1.0, 1.0]",
         "precision.max_ratio=1e6",
     ];
@@ -138,7 +138,7 @@ fn prior_scale(seeds: &[u64]) {
     println!("\n### state prior scale (encoder freeze at 8 s)\n");
     header();
     for pm in ["1e6", "1e7", "1e8", "1e9"] {
-        let o = format!("controller.prior_position_precision={pm}");
+        let o = format!("belief.prior_position_precision={pm}");
         rows(
             &format!("P_mu = {pm}"),
             &setup(ENC, &[&o]),
@@ -158,7 +158,7 @@ fn prediction(seeds: &[u64]) {
     header();
     for (case, file) in [("encoder freeze", ENC), ("tachometer-1 freeze", TACH)] {
         for p in ["paper", "coupled"] {
-            let o = format!("controller.prediction=\"{p}\"");
+            let o = format!("belief.prediction=\"{p}\"");
             rows(
                 &format!("{case}, {p}"),
                 &setup(file, &[&o]),
@@ -191,7 +191,11 @@ fn integral_gain(seeds: &[u64]) {
         let mut err = [0.0; 2];
         for &seed in seeds {
             let mut rec = TrajectoryRecorder::new(&s.layout);
-            run(&s, Method::NoFt, seed, None, &mut rec).expect("run");
+            Run::new(&s, Method::NoFt)
+                .seed(seed)
+                .observe(&mut rec, ObserverMode::Always)
+                .execute()
+                .expect("run");
             let row = &rec.rows[7499];
             for j in 0..2 {
                 let q = row[rec.column(&format!("q{}", j + 1)).unwrap()];
@@ -208,13 +212,17 @@ fn warm_up(seeds: &[u64]) {
     println!("| warm-up ticks | method | lowest health | channel | at t (s) |");
     println!("|---|---|---|---|---|");
     for ticks in ["100", "0"] {
-        let o = format!("controller.prior_warmup_ticks={ticks}");
+        let o = format!("belief.prior_warmup_ticks={ticks}");
         let s = setup(HEALTHY, &["duration=200.0", &o]);
         for method in [Method::PlAlways, Method::Window] {
             let mut lowest = (f64::INFINITY, String::new(), 0.0);
             for &seed in seeds {
                 let mut rec = TrajectoryRecorder::new(&s.layout);
-                run(&s, method, seed, None, &mut rec).expect("run");
+                Run::new(&s, method)
+                    .seed(seed)
+                    .observe(&mut rec, ObserverMode::Always)
+                    .execute()
+                    .expect("run");
                 for name in rec.header.iter().filter(|h| h.starts_with("health_")) {
                     let c = rec.column(name).unwrap();
                     for row in &rec.rows {

@@ -73,7 +73,7 @@ fn counted_ticks(setup: &aift::scenario::RunSetup, method: Method) -> (f64, Vec<
         {
             *l = l.min(p / n);
         }
-        metrics.on_tick(&record);
+        metrics.iter(&record);
         sim.actuate(None);
     };
     let mut warm_up = vec![f64::INFINITY; setup.layout.len()];

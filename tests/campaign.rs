@@ -17,7 +17,7 @@ fn small_campaign(dir: &Path) -> std::path::PathBuf {
 name = "small"
 seeds = 2
 methods = ["no-ft", "pl-always", "deterministic", "oracle"]
-set = ["plant.engine=\"articulated\"", "duration=10.0", "detector.calibration_runs=8"]
+defaults = {{ duration = 10.0, plant = {{ engine = "articulated" }}, detector = {{ calibration_runs = 8 }} }}
 channels = ["enc*", "tach*"]
 
 [[arms]]
@@ -273,4 +273,52 @@ fn flags_and_false_alarms_follow_their_definitions() {
         .unwrap();
     assert_eq!(oracle.verdict, Verdict::Recovered);
     assert_eq!(oracle.ratio_to_oracle, Some(1.0));
+}
+
+/// A campaign's scenario keys are typed by the scenario's schema when laid over a template: a
+/// bad one is refused before any run, naming the campaign file and `defaults.KEY` (or the arm's
+/// `overrides`); the old `set = [...]` strings are refused with the way to write them now.
+#[test]
+fn campaign_scenario_keys_are_typed_and_named_by_their_table() {
+    let dir = tempfile::tempdir().unwrap();
+    let template = common::repo("assets/scenarios/paper_healthy.toml");
+    let write = |name: &str, keys: &str| {
+        let path = dir.path().join(name);
+        std::fs::write(
+            &path,
+            format!(
+                "name = \"c\"\n{keys}\n[[arms]]\nname = \"paper\"\nscenario = \"{}\"\n\n[[kinds]]\nkind = \"freeze\"\n",
+                template.display()
+            ),
+        )
+        .unwrap();
+        path
+    };
+    let err = |path: &Path| {
+        aift::scenario::campaign::Campaign::load(path, &[])
+            .err()
+            .map(|e| aift::error_chain(&e))
+            .unwrap_or_default()
+    };
+    let bad_default = write("a.toml", "defaults = { plant = { engine = \"warp\" } }");
+    let e = err(&bad_default);
+    assert!(
+        e.contains("a.toml") && e.contains("`defaults.plant.engine`") && e.contains("warp"),
+        "{e}"
+    );
+    let bad_arm = write("b.toml", "");
+    let text = std::fs::read_to_string(&bad_arm).unwrap().replacen(
+        "scenario = ",
+        "overrides = { plant = { engine = \"warp\" } }\nscenario = ",
+        1,
+    );
+    std::fs::write(&bad_arm, text).unwrap();
+    let e = err(&bad_arm);
+    assert!(e.contains("`arms[0].overrides.plant.engine`"), "{e}");
+    let old = write("c.toml", "set = [\"duration=9.0\"]");
+    let e = err(&old);
+    assert!(
+        e.contains("`set = [...]`") && e.contains("[defaults]"),
+        "{e}"
+    );
 }

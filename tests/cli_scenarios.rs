@@ -431,13 +431,7 @@ fn a_diverging_run_is_a_result_not_an_error() {
     let tmp = tempfile::tempdir().unwrap();
     // The paper's explicit gradient step with physical precisions: unstable (docs/method.md, "The u-AIC").
     let out = aift(
-        &[
-            "run",
-            "--set",
-            "controller.update=\"gradient\"",
-            "--out",
-            "d",
-        ],
+        &["run", "--set", "belief.update=\"gradient\"", "--out", "d"],
         tmp.path(),
     );
     ok(&out);

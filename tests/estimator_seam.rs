@@ -6,7 +6,7 @@ mod common;
 
 use aift::estimation::{Estimate, Estimator, EstimatorInput};
 use aift::precision::Fixed;
-use aift::scenario::{NoObserver, run_parts};
+use aift::scenario::Run;
 use aift::sensors::{Channel, ChannelLayout};
 use nalgebra::{Matrix2, Vector2};
 
@@ -108,14 +108,14 @@ fn a_linear_kalman_filter_plugs_in_and_reaches_the_set_point() {
     let setup = common::setup("paper_healthy.toml", &[]);
     let nominal = setup.nominal_precisions();
     let estimator = LinearKalman::new(setup.layout, setup.scenario().dt);
-    let result = run_parts(
-        &setup,
-        "linear-kf",
-        1,
-        (Box::new(estimator), Box::new(Fixed::new(&nominal))),
-        &mut NoObserver,
-    )
-    .expect("run");
+    let parts = (
+        Box::new(estimator) as Box<dyn aift::estimation::Estimator>,
+        Box::new(Fixed::new(&nominal)) as Box<dyn aift::precision::PrecisionMethod>,
+    );
+    let result = Run::with_parts(&setup, "linear-kf", parts)
+        .seed(1)
+        .execute()
+        .expect("run");
     eprintln!(
         "linear KF on the healthy paper scenario: outcome {}, belief MSE {:?}, final error {:.2e}",
         result.outcome.name(),

@@ -291,8 +291,8 @@ fn the_hybrid_holds_with_the_arm_models_masses_twenty_percent_off() {
             "undamped2_tachometer_freeze.toml",
             "undamped2_healthy.toml",
         ] {
-            let set = format!("hybrid.mass_scale={scale}");
-            let setup = common::setup(file, &[set.as_str()]);
+            let set = format!("model.mass_scale={scale}");
+            let setup = common::setup(file, &[set.as_str(), "model.draw=false"]);
             for r in runs(&setup, &[Method::Hybrid], &[1]) {
                 eprintln!(
                     "{file} masses x{scale}: final error {:.1e}, isolated {:?}, false alarms {}",

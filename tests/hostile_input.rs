@@ -252,7 +252,7 @@ fn errors_name_the_key_and_the_set_that_gave_it() {
                 "--set",
                 &set,
                 "--set",
-                "controller.update=\"gradient\"",
+                "belief.update=\"gradient\"",
                 "--out",
                 "o",
             ],
@@ -269,20 +269,21 @@ fn errors_name_the_key_and_the_set_that_gave_it() {
         "o",
     );
     refused(
-        &["run", "--set", "kalman.mass_scale=0.0", "--out", "o"],
-        &["kalman.mass_scale", "(0, 100]"],
+        &["run", "--set", "model.mass_scale=0.0", "--out", "o"],
+        &["model.mass_scale", "(0, 100]"],
         d,
         "o",
     );
     refused(
-        &[
-            "run",
-            "--set",
-            "kalman.model_relative_error=-1.0",
-            "--out",
-            "o",
-        ],
-        &["kalman.model_relative_error"],
+        &["run", "--set", "model.relative_error=-1.0", "--out", "o"],
+        &["model.relative_error"],
+        d,
+        "o",
+    );
+    // A key that moved says where to.
+    refused(
+        &["run", "--set", "kalman.mass_scale=0.5", "--out", "o"],
+        &["kalman.mass_scale", "moved to `model.mass_scale`"],
         d,
         "o",
     );

@@ -6,7 +6,7 @@ mod common;
 
 use aift::report::html::{self, FolderKind};
 use aift::report::run_files;
-use aift::scenario::{Method, TrajectoryRecorder};
+use aift::scenario::{Method, Run, TrajectoryRecorder};
 use common::{aift_ok, setup, tiny_campaign};
 
 use common::aift_in as aift;
@@ -139,12 +139,13 @@ fn in_memory_trajectory_equals_the_file() {
         &["duration=3.0", "record_every=7"],
     );
     let (_, summary, columns) =
-        run_files::run_in_memory(&s, Method::PlAlways, 4, None).expect("runs");
+        run_files::run_in_memory(Run::new(&s, Method::PlAlways).seed(4)).expect("runs");
     let dir = tempfile::tempdir().unwrap();
     let staged =
         aift::fsio::Staged::begin(&dir.path().join("r"), aift::fsio::OutputKind::Folder, false)
             .unwrap();
-    let result = run_files::run_into(staged, &s, Method::PlAlways, 4, None).unwrap();
+    let result = run_files::run_staged(&staged, Run::new(&s, Method::PlAlways).seed(4)).unwrap();
+    staged.commit().unwrap();
     let file = TrajectoryRecorder::read_csv(&dir.path().join("r/trajectory.csv")).unwrap();
     assert_eq!(file.header, columns.names());
     assert_eq!(file.rows.len(), columns.rows());
@@ -178,7 +179,7 @@ fn in_memory_trajectory_is_bounded_before_the_run() {
         // Within the trajectory file's bound (4 GiB), beyond the in-memory one (2^27 values).
         &["duration=4100.0", "plant.engine=\"articulated\""],
     );
-    let err = run_files::run_in_memory(&s, Method::NoFt, 1, None).unwrap_err();
+    let err = run_files::run_in_memory(Run::new(&s, Method::NoFt).seed(1)).unwrap_err();
     let msg = err.to_string();
     assert!(
         msg.contains("record_every") && msg.contains("paper_healthy.toml"),

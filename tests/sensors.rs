@@ -364,7 +364,7 @@ fn fault_specs_are_validated_field_by_field() {
         ),
     ];
     for (s, field) in cases {
-        assert_eq!(s.to_fault(&layout2()).unwrap_err().0, field, "{s:?}");
+        assert_eq!(s.to_fault(&layout2()).unwrap_err().field, field, "{s:?}");
     }
 }
 

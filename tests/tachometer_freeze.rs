@@ -11,11 +11,11 @@ use common::{run_recorded, setup};
 fn the_oracle_recovers_only_with_the_coupled_prediction() {
     let coupled = setup(
         "paper_tachometer_freeze.toml",
-        &["controller.prediction=\"coupled\""],
+        &["belief.prediction=\"coupled\""],
     );
     let paper = setup(
         "paper_tachometer_freeze.toml",
-        &["controller.prediction=\"paper\""],
+        &["belief.prediction=\"paper\""],
     );
     let (c, _) = run_recorded(&coupled, Method::Oracle, 1, None);
     let (p, _) = run_recorded(&paper, Method::Oracle, 1, None);

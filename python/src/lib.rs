@@ -20,8 +20,8 @@ use aift::scenario::calibrate;
 use aift::scenario::campaign::{self, Campaign, CampaignConfig, Shard};
 use aift::scenario::metrics::DivergenceGuard;
 use aift::scenario::{
-    LoadedScenario, Method, Observer, RunSetup, ScenarioError, Simulation, TickRecord,
-    TrajectoryColumns, table,
+    LoadedScenario, Method, Observer, ObserverMode, Run, RunSetup, ScenarioError, Simulation,
+    StopReason, TickRecord, TrajectoryColumns, table,
 };
 use aift::sensors::Readings;
 
@@ -311,21 +311,23 @@ fn calibration(
     Ok(found.map(|(cal, _)| cal))
 }
 
-/// Stops a run when Python has a signal pending (Ctrl-C), checked every 4096 ticks.
+/// Ticks between checks for a pending Python signal.
+const INTERRUPT_TICKS: u64 = 4096;
+
+/// Stops a run when Python has a signal pending (Ctrl-C), checked every [`INTERRUPT_TICKS`]
+/// ticks (it is registered with `ObserverMode::Every`).
 struct Interrupt {
     interrupted: Cell<bool>,
 }
 
 impl Observer for Interrupt {
-    fn on_tick(&mut self, r: &TickRecord<'_>) {
-        if r.tick % 4096 == 4095 && Python::attach(|py| py.check_signals()).is_err() {
+    fn iter(&mut self, r: &TickRecord<'_>) {
+        if r.tick > 0 && Python::attach(|py| py.check_signals()).is_err() {
             self.interrupted.set(true);
         }
     }
-    fn stop(&self) -> Option<String> {
-        self.interrupted
-            .get()
-            .then(|| "interrupted from Python".to_string())
+    fn stop(&self) -> Option<StopReason> {
+        self.interrupted.get().then_some(StopReason::Interrupted)
     }
 }
 
@@ -397,19 +399,18 @@ fn run<'py>(
     let mut interrupt = Interrupt {
         interrupted: Cell::new(false),
     };
+    let every = sc.record_every;
     let result = py.detach(|| {
-        let mut observers: Vec<&mut dyn Observer> = vec![&mut interrupt];
+        let mut run = Run::new(&setup, method)
+            .seed(seed)
+            .calibration(cal.as_ref())
+            .observe(&mut interrupt, ObserverMode::Every(INTERRUPT_TICKS));
         if let Some(c) = columns.as_mut() {
-            observers.push(c);
+            run = run.observe(c, ObserverMode::Every(every));
         }
-        let mut all = aift::scenario::Observers(observers);
         match &staged {
-            Some(staged) => {
-                run_files::run_staged(staged, &setup, method, seed, cal.as_ref(), &mut all)
-                    .map_err(report_err)
-            }
-            None => aift::scenario::run(&setup, method, seed, cal.as_ref(), &mut all)
-                .map_err(|e| scenario_err(e, &[])),
+            Some(staged) => run_files::run_staged(staged, run).map_err(report_err),
+            None => run.execute().map_err(|e| scenario_err(e, &[])),
         }
     })?;
     if interrupt.interrupted.get() {
@@ -530,7 +531,6 @@ fn run_campaign(
     if methods.is_some() {
         config.methods = Some(parse_methods(methods)?);
     }
-    config.set.extend(set);
     let staged = match &out {
         Some(dir) => Some(Staged::begin(dir, OutputKind::Folder, force).map_err(file_err)?),
         None => None,
@@ -538,7 +538,7 @@ fn run_campaign(
     let cache = calibrate::default_cache_dir();
     let (campaign, records) = py
         .detach(|| {
-            let campaign = Campaign::from_config(config, &path, &[])?;
+            let campaign = Campaign::from_config(config, &path, &set)?;
             let records = campaign::run_campaign(&campaign, shard, cache.as_deref(), &|_, _| {})?;
             Ok::<_, ScenarioError>((campaign, records))
         })
@@ -597,9 +597,9 @@ impl PySim {
         let sim = self.sim.as_ref().expect("reset before observe");
         let r = sim.record();
         if self.diverged.is_none()
-            && let Some(reason) = DivergenceGuard.check(&r)
+            && let Some(reason) = DivergenceGuard::check(&r)
         {
-            self.diverged = Some((r.tick, reason));
+            self.diverged = Some((r.tick, reason.describe().to_string()));
         }
         let obs = PyDict::new(py);
         obs.set_item("tick", r.tick)?;
@@ -679,7 +679,10 @@ impl PySim {
     ) -> PyResult<(Bound<'py, PyDict>, Bound<'py, PyDict>)> {
         let readings = self.readings(readings)?;
         let seed = seed.unwrap_or(self.setup.scenario().seed);
-        let mut sim = Simulation::new(&self.setup, self.method, seed, self.calibration.as_ref())
+        let mut sim = Run::new(&self.setup, self.method)
+            .seed(seed)
+            .calibration(self.calibration.as_ref())
+            .simulation()
             .map_err(|e| scenario_err(e, &[]))?;
         sim.decide(readings.as_ref());
         self.sim = Some(sim);

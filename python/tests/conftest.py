@@ -51,7 +51,7 @@ def tiny_campaign(repo):
 name = "{name}"
 seeds = 1
 methods = {quoted(methods)}
-set = ["plant.engine=\\"articulated\\"", "duration=9.0"]
+defaults = {{ duration = 9.0, plant = {{ engine = "articulated" }} }}
 channels = {quoted(channels)}
 
 [[arms]]

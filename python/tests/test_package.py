@@ -82,9 +82,9 @@ def test_to_pandas_and_numpy():
 
 def test_scenario_set_to_toml_round_trip(repo):
     sc = aift.Scenario.load(repo / "assets/scenarios/paper_healthy.toml")
-    sc.set("duration", 2.5).set("controller.prior_position_precision", 1e9).set("precision.method", "bayes")
+    sc.set("duration", 2.5).set("belief.prior_position_precision", 1e9).set("precision.method", "bayes")
     assert sc.duration == 2.5 and sc.method == "bayes"
-    assert sc.overrides == ["duration=2.5", "controller.prior_position_precision=1000000000.0", 'precision.method="bayes"']
+    assert sc.overrides == ["duration=2.5", "belief.prior_position_precision=1000000000.0", 'precision.method="bayes"']
     # A Python str stays text even when it reads as a number; numpy integers are integers.
     assert 'name = "2024"' in sc.copy().set("name", "2024").to_toml()
     assert "record_every = 3" in sc.copy().set("record_every", np.int64(3)).to_toml()

@@ -260,6 +260,27 @@ impl Dynamics {
         true
     }
 
+    /// Solves M x = b in place with the factor of the last successful
+    /// [`Self::forward_dynamics`] (h = 0), without allocating or factoring again.
+    pub fn solve_factored(&self, b: &mut [f64]) {
+        let n = b.len();
+        let l = &self.factor;
+        for i in 0..n {
+            let mut v = b[i];
+            for k in 0..i {
+                v -= l[(i, k)] * b[k];
+            }
+            b[i] = v / l[(i, i)];
+        }
+        for i in (0..n).rev() {
+            let mut v = b[i];
+            for k in i + 1..n {
+                v -= l[(k, i)] * b[k];
+            }
+            b[i] = v / l[(i, i)];
+        }
+    }
+
     /// The right-hand side [`Self::solve_damped`] solves in place.
     pub fn rhs_mut(&mut self) -> &mut DVector<f64> {
         &mut self.rhs

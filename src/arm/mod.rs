@@ -1,6 +1,7 @@
 //! The arm, once: one immutable model of the arm ([`ArmModel`], read from a URDF by [`urdf`]),
 //! its forward kinematics ([`kinematics`]: body poses, the end effector, its Jacobian) and its
-//! rigid-body dynamics ([`dynamics`]: mass matrix, bias torques, forward dynamics). Shared as `Arc<ArmModel>` by the
+//! rigid-body dynamics ([`dynamics`]: mass matrix, bias torques, forward dynamics), and the
+//! errors the estimators' copy of it carries ([`model_error`]). Shared as `Arc<ArmModel>` by the
 //! plants, the sensors, the camera model's training, `aift init` and the estimators. Nothing here
 //! knows how the arm is simulated.
 
@@ -8,6 +9,7 @@ pub mod dynamics;
 mod error;
 pub mod kinematics;
 mod model;
+pub mod model_error;
 pub mod urdf;
 
 pub use dynamics::Dynamics;
@@ -16,6 +18,7 @@ pub use kinematics::{EndEffector, Kinematics};
 pub use model::{
     ArmModel, BodySpec, ColliderSpec, JointKind, JointSpec, LinkFrame, ShapeSpec, to_parry_pose,
 };
+pub use model_error::ModelConfig;
 pub use urdf::{UrdfOptions, load_urdf, load_urdf_with, parse_urdf, parse_urdf_with};
 
 /// The arm as `aift check-urdf --json` prints it: joints (kind, parent and child links, axis,

@@ -12,8 +12,9 @@ use serde::{Deserialize, Serialize};
 
 pub use pid::{Pid, PidGains};
 
-/// Settings of the control stage.
+/// Settings of the control stage (the scenario's `[controller]` section).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(deny_unknown_fields, default)]
 pub struct ControlConfig {
     pub gains: PidGains,
     /// Finite action gain kappa_u (1/s); absent: u = f* (the authors' kappa_u -> infinity).
@@ -34,21 +35,22 @@ impl Default for ControlConfig {
 
 impl ControlConfig {
     /// Checks the settings for an arm of `n_joints`; returns the offending field and why.
-    pub fn validate(&self, n_joints: usize) -> Result<(), (String, String)> {
+    pub fn validate(&self, n_joints: usize) -> Result<(), crate::SettingError> {
         let positive = |name: &str, v: f64| {
             if v.is_finite() && v > 0.0 && v <= 1e300 {
                 Ok(())
             } else {
-                Err((name.to_string(), format!("{v} must be finite and > 0")))
+                Err(crate::SettingError::new(
+                    name.to_string(),
+                    format!("{v} must be finite and > 0"),
+                ))
             }
         };
         positive("control_precision", self.control_precision)?;
         if let Some(k) = self.kappa_u {
             positive("kappa_u", k)?;
         }
-        self.gains
-            .validate(n_joints)
-            .map_err(|(f, m)| (format!("gains.{f}"), m))
+        self.gains.validate(n_joints).map_err(|e| e.within("gains"))
     }
 }
 

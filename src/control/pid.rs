@@ -34,7 +34,7 @@ impl PidGains {
     }
 
     /// Checks the lengths and values; returns the offending field and why.
-    pub fn validate(&self, n_joints: usize) -> Result<(), (&'static str, String)> {
+    pub fn validate(&self, n_joints: usize) -> Result<(), crate::SettingError> {
         for (name, v) in [
             ("kp", &self.kp),
             ("kd", &self.kd),
@@ -42,13 +42,16 @@ impl PidGains {
             ("integral_limit", &self.integral_limit),
         ] {
             if v.len() != n_joints {
-                return Err((
+                return Err(crate::SettingError::new(
                     name,
                     format!("has {} entries; the arm has {n_joints} joints", v.len()),
                 ));
             }
             if !v.iter().all(|x| x.is_finite() && *x >= 0.0 && *x <= 1e12) {
-                return Err((name, "entries must be finite, >= 0 and <= 1e12".into()));
+                return Err(crate::SettingError::new(
+                    name,
+                    "entries must be finite, >= 0 and <= 1e12",
+                ));
             }
         }
         Ok(())

@@ -61,7 +61,7 @@ use crate::sensors::{Channel, ChannelLayout, NOISE_FREE_PRECISION};
 pub enum BankModel {
     /// Constant velocity with white acceleration noise (no model of the arm).
     ConstantVelocity,
-    /// The arm's dynamics (the URDF's model, masses scaled by `mass_scale`) and applied torques.
+    /// The arm's dynamics (the estimators' model, `[model]`) and applied torques.
     #[default]
     Dynamics,
 }
@@ -124,16 +124,9 @@ pub enum CameraPrecision {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct HybridConfig {
+    /// The bank's transition: the arm's dynamics on the estimators' model with the process
+    /// noise of `[model]` (default), or constant velocity at `belief.acceleration_bound`.
     pub bank_model: BankModel,
-    /// The model's masses and inertias as a multiple of the URDF's (model error).
-    pub mass_scale: f64,
-    /// The bank's process noise with the dynamics model: acceleration error (rad/s^2) as one
-    /// standard deviation; with the constant-velocity model the acceleration bound is used.
-    pub model_acceleration_noise: f64,
-    /// The model's relative acceleration error: each joint's process noise is
-    /// max(model_acceleration_noise, this x |predicted acceleration|) (0.1 covers masses 10 %
-    /// off and the integrator's own error in fast motion).
-    pub model_relative_error: f64,
     /// Per-tick probability of leaving a hypothesis.
     pub switch: f64,
     /// A failed channel's noise standard deviation, as a multiple of its nominal.
@@ -147,9 +140,9 @@ pub struct HybridConfig {
     /// Re-anchor the belief when another hypothesis wins that holds failed a channel the last
     /// winner trusted, and the belief lies outside its 3-sigma ellipsoid.
     pub reanchor: bool,
-    /// The belief's state prior (the hybrid's own; `controller.prior` sets the other u-AIC
+    /// The belief's state prior (the hybrid's own; `belief.prior` sets the other u-AIC
     /// methods'): the u-AIC's fixed P_mu, P_mu' (the paper's, default), or the propagated prior
-    /// (a Kalman filter's covariance; needs `controller.update = "gauss-newton"`). Measured in
+    /// (a Kalman filter's covariance; needs `belief.update = "gauss-newton"`). Measured in
     /// docs/method.md, "The hybrid": the propagated prior lowers the belief error of healthy
     /// runs by about a fifth, but it integrates a tachometer's scale error into the position,
     /// and once an encoder is dropped it leans on the camera model's bias. A third choice,
@@ -182,9 +175,6 @@ impl Default for HybridConfig {
     fn default() -> Self {
         Self {
             bank_model: BankModel::Dynamics,
-            mass_scale: 1.0,
-            model_acceleration_noise: 2.0,
-            model_relative_error: 0.1,
             switch: 1e-6,
             broad: 1000.0,
             camera_inflation: 1.2,
@@ -200,32 +190,39 @@ impl Default for HybridConfig {
 }
 
 impl HybridConfig {
-    pub fn validate(&self) -> Result<(), (&'static str, String)> {
-        super::kalman::validate_model_error(
-            self.mass_scale,
-            self.model_acceleration_noise,
-            self.model_relative_error,
-        )?;
+    pub fn validate(&self) -> Result<(), crate::SettingError> {
         if !(self.switch > 0.0 && self.switch < 0.5) {
-            return Err(("switch", "must be in (0, 0.5)".into()));
+            return Err(crate::SettingError::new("switch", "must be in (0, 0.5)"));
         }
         if !(self.broad.is_finite() && self.broad > 1.0 && self.broad <= 1e9) {
-            return Err(("broad", "must be in (1, 1e9]".into()));
+            return Err(crate::SettingError::new("broad", "must be in (1, 1e9]"));
         }
         if !(self.camera_inflation.is_finite()
             && self.camera_inflation >= 1.0
             && self.camera_inflation <= 1e3)
         {
-            return Err(("camera_inflation", "must be in [1, 1e3]".into()));
+            return Err(crate::SettingError::new(
+                "camera_inflation",
+                "must be in [1, 1e3]",
+            ));
         }
         if !(self.camera_broad.is_finite() && self.camera_broad > 1.0 && self.camera_broad <= 1e9) {
-            return Err(("camera_broad", "must be in (1, 1e9]".into()));
+            return Err(crate::SettingError::new(
+                "camera_broad",
+                "must be in (1, 1e9]",
+            ));
         }
         if !(0.0..1.0).contains(&self.stuck_weight) {
-            return Err(("stuck_weight", "must be in [0, 1)".into()));
+            return Err(crate::SettingError::new(
+                "stuck_weight",
+                "must be in [0, 1)",
+            ));
         }
         if !(self.stuck_width.is_finite() && self.stuck_width > 0.0 && self.stuck_width <= 100.0) {
-            return Err(("stuck_width", "must be in (0, 100]".into()));
+            return Err(crate::SettingError::new(
+                "stuck_width",
+                "must be in (0, 100]",
+            ));
         }
         Ok(())
     }
@@ -780,32 +777,42 @@ impl Estimator for Hybrid {
     }
 }
 
-/// Builds the hybrid's parts from the scenario's settings: the bank's transition is the arm's
-/// dynamics on `model` (the estimator's copy, masses scaled by `mass_scale`) with the model's
-/// process noise, or constant velocity at the acceleration bound.
-#[allow(clippy::too_many_arguments)]
+/// The hybrid's bank transition: the arm's dynamics on `model` (the estimators' copy of the
+/// arm) with the process noise of `noise` (`[model]`; its floor also where the mass matrix is
+/// singular), or constant velocity at the acceleration bound.
+pub fn bank_transition(
+    config: &HybridConfig,
+    model: Arc<crate::arm::ArmModel>,
+    gravity: [f64; 3],
+    noise: &crate::arm::ModelConfig,
+    acceleration_bound: f64,
+) -> Box<dyn TransitionModel> {
+    let n = model.joints.len();
+    match config.bank_model {
+        BankModel::ConstantVelocity => Box::new(ConstantVelocity::new(n, acceleration_bound)),
+        BankModel::Dynamics => Box::new(
+            ArmTransition::new(
+                model,
+                gravity,
+                noise.acceleration_noise,
+                noise.relative_error,
+                noise.acceleration_noise,
+            )
+            .with_uncertainty(noise.uncertainty()),
+        ),
+    }
+}
+
+/// Builds the hybrid: the u-AIC's belief, a bank on `observation` predicting with `transition`.
 pub fn build(
     uaic: Uaic,
     observation: Arc<dyn ObservationModel>,
     dt: f64,
-    acceleration_bound: f64,
-    model: &crate::arm::ArmModel,
-    gravity: [f64; 3],
+    transition: Box<dyn TransitionModel>,
     config: &HybridConfig,
     nominal: &[f64],
     floor: f64,
 ) -> Hybrid {
-    let n = model.joints.len();
-    let transition: Box<dyn TransitionModel> = match config.bank_model {
-        BankModel::ConstantVelocity => Box::new(ConstantVelocity::new(n, acceleration_bound)),
-        BankModel::Dynamics => Box::new(ArmTransition::new(
-            Arc::new(super::kalman::scaled_masses(model, config.mass_scale)),
-            gravity,
-            config.model_acceleration_noise,
-            config.model_relative_error,
-            config.model_acceleration_noise,
-        )),
-    };
     let ekf = Ekf::new(observation, dt);
     Hybrid::new(uaic, ekf, transition, config.clone(), nominal, floor)
 }

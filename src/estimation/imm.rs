@@ -284,7 +284,15 @@ mod tests {
         );
         let template = Ekf::new(observation, dt);
         let nominal = vec![1e6; layout.len()];
-        let prediction = crate::estimation::kalman::transition_model(&config, &model, g, 200.0);
+        let model = Arc::new(model);
+        let noise = crate::arm::ModelConfig::perfect();
+        let prediction = crate::estimation::kalman::transition_model(
+            ProcessModel::Dynamics,
+            model.clone(),
+            g,
+            &noise,
+            200.0,
+        );
         let mut imm = Imm::new(template, &config, prediction, &nominal);
         let x = [0.3, -0.7, 0.5, -1.0];
         let u = [40.0, -3.0];
@@ -294,7 +302,7 @@ mod tests {
             f.p.fill_with_identity();
         }
         imm.predict_bank(&u);
-        let mut direct = crate::arm::Dynamics::new(Arc::new(model), g);
+        let mut direct = crate::arm::Dynamics::new(model, g);
         let mut acc = vec![0.0; 2];
         assert!(direct.forward_dynamics(&x[..2], &x[2..], &u, &mut acc));
         let (k, scale) = imm.manoeuvre.expect("a manoeuvre hypothesis by default");

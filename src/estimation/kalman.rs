@@ -29,7 +29,7 @@ use crate::sensors::{Channel, ChannelLayout, Readings};
 #[serde(deny_unknown_fields, default)]
 pub struct KalmanConfig {
     /// Process noise of the constant-velocity model: the acceleration (rad/s^2) treated as one
-    /// standard deviation; absent: the u-AIC's `controller.acceleration_bound`. With
+    /// standard deviation; absent: the u-AIC's `belief.acceleration_bound`. With
     /// `process_model = "dynamics"` used only where the arm's mass matrix is singular.
     pub acceleration_noise: Option<f64>,
     /// Chi-square gate on a channel's normalised innovation nu^2 / S (1 degree of freedom;
@@ -58,17 +58,8 @@ pub struct KalmanConfig {
     pub common_mode: usize,
     /// The filters' transition model: constant velocity with `acceleration_noise` (default, as
     /// in the textbook baselines), or the arm's own dynamics driven by the applied torques, the
-    /// model the hybrid's bank uses (the same process noise: max(`model_acceleration_noise`,
-    /// `model_relative_error` x |predicted acceleration|) per joint).
+    /// model the hybrid's bank uses: the estimators' arm model and process noise of `[model]`.
     pub process_model: ProcessModel,
-    /// With the dynamics model (ignored with constant velocity, as are the next two): the
-    /// model's masses and inertias as a multiple of the URDF's.
-    pub mass_scale: f64,
-    /// With the dynamics model: the acceleration error (rad/s^2) taken as one standard
-    /// deviation at least (the hybrid's default).
-    pub model_acceleration_noise: f64,
-    /// With the dynamics model: the relative acceleration error (the hybrid's default).
-    pub model_relative_error: f64,
 }
 
 /// The Kalman baselines' transition model (`kalman.process_model`).
@@ -80,7 +71,7 @@ pub enum ProcessModel {
     /// Constant velocity with white acceleration noise.
     #[default]
     ConstantVelocity,
-    /// The arm's dynamics (the URDF's model, masses scaled by `mass_scale`) and applied torques.
+    /// The arm's dynamics (the estimators' model, `[model]`) and applied torques.
     Dynamics,
 }
 
@@ -98,112 +89,97 @@ impl Default for KalmanConfig {
             imm_manoeuvre: 10.0,
             common_mode: 2,
             process_model: ProcessModel::ConstantVelocity,
-            mass_scale: 1.0,
-            model_acceleration_noise: 2.0,
-            model_relative_error: 0.1,
         }
     }
 }
 
 impl KalmanConfig {
-    pub fn validate(&self) -> Result<(), (&'static str, String)> {
+    pub fn validate(&self) -> Result<(), crate::SettingError> {
         if let Some(a) = self.acceleration_noise
             && !(a.is_finite() && a > 0.0 && a <= 1e9)
         {
-            return Err((
+            return Err(crate::SettingError::new(
                 "acceleration_noise",
-                "must be finite, > 0 and <= 1e9".into(),
+                "must be finite, > 0 and <= 1e9",
             ));
         }
         if !(self.gate.is_finite() && self.gate > 0.0) {
-            return Err(("gate", "must be finite and > 0".into()));
+            return Err(crate::SettingError::new("gate", "must be finite and > 0"));
         }
         if self.exclude_after == 0 || self.exclude_after > 1_000_000_000 {
-            return Err(("exclude_after", "must be in 1..=1e9".into()));
+            return Err(crate::SettingError::new(
+                "exclude_after",
+                "must be in 1..=1e9",
+            ));
         }
         if self.readmit_after == 0 || self.readmit_after > 1_000_000_000 {
-            return Err(("readmit_after", "must be in 1..=1e9".into()));
+            return Err(crate::SettingError::new(
+                "readmit_after",
+                "must be in 1..=1e9",
+            ));
         }
         if !(1..=100).contains(&self.vb_iterations) {
-            return Err(("vb_iterations", "must be in 1..=100".into()));
+            return Err(crate::SettingError::new(
+                "vb_iterations",
+                "must be in 1..=100",
+            ));
         }
         if !(self.vb_rho > 0.0 && self.vb_rho < 1.0) {
-            return Err(("vb_rho", "must be in (0, 1)".into()));
+            return Err(crate::SettingError::new("vb_rho", "must be in (0, 1)"));
         }
         if !(self.imm_switch > 0.0 && self.imm_switch < 0.5) {
-            return Err(("imm_switch", "must be in (0, 0.5)".into()));
+            return Err(crate::SettingError::new(
+                "imm_switch",
+                "must be in (0, 0.5)",
+            ));
         }
         if !(self.imm_broad.is_finite() && self.imm_broad > 1.0 && self.imm_broad <= 1e9) {
-            return Err(("imm_broad", "must be in (1, 1e9]".into()));
+            return Err(crate::SettingError::new("imm_broad", "must be in (1, 1e9]"));
         }
         if !(self.imm_manoeuvre == 0.0
             || (self.imm_manoeuvre.is_finite()
                 && self.imm_manoeuvre > 1.0
                 && self.imm_manoeuvre <= 1e6))
         {
-            return Err(("imm_manoeuvre", "must be 0 or in (1, 1e6]".into()));
+            return Err(crate::SettingError::new(
+                "imm_manoeuvre",
+                "must be 0 or in (1, 1e6]",
+            ));
         }
         if self.common_mode > 1_000_000 {
-            return Err(("common_mode", "must be <= 1000000".into()));
+            return Err(crate::SettingError::new(
+                "common_mode",
+                "must be <= 1000000",
+            ));
         }
-        validate_model_error(
-            self.mass_scale,
-            self.model_acceleration_noise,
-            self.model_relative_error,
-        )
+        Ok(())
     }
 }
 
-/// The arm model's error settings, shared by `[kalman]` and `[hybrid]`: `mass_scale`,
-/// `model_acceleration_noise`, `model_relative_error`.
-pub fn validate_model_error(
-    mass_scale: f64,
-    acceleration_noise: f64,
-    relative_error: f64,
-) -> Result<(), (&'static str, String)> {
-    if !(mass_scale.is_finite() && mass_scale > 0.0 && mass_scale <= 100.0) {
-        return Err(("mass_scale", "must be in (0, 100]".into()));
-    }
-    if !(acceleration_noise.is_finite() && acceleration_noise > 0.0 && acceleration_noise <= 1e9) {
-        return Err(("model_acceleration_noise", "must be in (0, 1e9]".into()));
-    }
-    if !(relative_error.is_finite() && (0.0..=10.0).contains(&relative_error)) {
-        return Err(("model_relative_error", "must be in [0, 10]".into()));
-    }
-    Ok(())
-}
-
-/// The transition model `config` asks for: the arm's dynamics on `model` (the estimator's copy
-/// of the arm, masses scaled by `mass_scale`) with the model's process noise, or constant
-/// velocity with `acceleration_noise` (also the dynamics' fallback where its mass matrix is
-/// singular).
+/// The transition model `process` names: the arm's dynamics on `model` (the estimators' copy of
+/// the arm) with the process noise of `noise` (`[model]`), or constant velocity with
+/// `acceleration_noise` (also the dynamics' fallback where its mass matrix is singular).
 pub fn transition_model(
-    config: &KalmanConfig,
-    model: &ArmModel,
+    process: ProcessModel,
+    model: Arc<ArmModel>,
     gravity: [f64; 3],
+    noise: &crate::arm::ModelConfig,
     acceleration_noise: f64,
 ) -> Box<dyn TransitionModel> {
     let n = model.joints.len();
-    match config.process_model {
+    match process {
         ProcessModel::ConstantVelocity => Box::new(ConstantVelocity::new(n, acceleration_noise)),
-        ProcessModel::Dynamics => Box::new(ArmTransition::new(
-            Arc::new(scaled_masses(model, config.mass_scale)),
-            gravity,
-            config.model_acceleration_noise,
-            config.model_relative_error,
-            acceleration_noise,
-        )),
+        ProcessModel::Dynamics => Box::new(
+            ArmTransition::new(
+                model,
+                gravity,
+                noise.acceleration_noise,
+                noise.relative_error,
+                acceleration_noise,
+            )
+            .with_uncertainty(noise.uncertainty()),
+        ),
     }
-}
-
-/// `model` with every body's mass and inertia scaled by `mass_scale`.
-pub fn scaled_masses(model: &ArmModel, mass_scale: f64) -> ArmModel {
-    let mut m = model.clone();
-    for b in &mut m.bodies {
-        b.mass *= mass_scale;
-        b.inertia *= mass_scale;
-    }
-    m
 }
 
 /// The extended Kalman filter on [q, qd]: the one filter step (predict with a transition, update
@@ -845,18 +821,20 @@ mod tests {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("urdf/planar_2dof.urdf");
         let model = crate::arm::load_urdf(&path).unwrap();
         let g = [0.0, 0.0, -9.81];
-        let mut config = KalmanConfig::default();
+        let model = Arc::new(model);
+        let noise = crate::arm::ModelConfig::perfect();
         let (q, qd, u) = ([0.3, -0.7], [0.5, -1.0], [40.0, -3.0]);
         let x = [q[0], q[1], qd[0], qd[1]];
+        let cv = ProcessModel::ConstantVelocity;
         assert!(
-            transition_model(&config, &model, g, 200.0)
+            transition_model(cv, model.clone(), g, &noise, 200.0)
                 .evaluate(&x, &u)
                 .acceleration
                 .is_none()
         );
-        config.process_model = ProcessModel::Dynamics;
-        let mut prediction = transition_model(&config, &model, g, 200.0);
-        let mut direct = crate::arm::Dynamics::new(Arc::new(model.clone()), g);
+        let mut prediction =
+            transition_model(ProcessModel::Dynamics, model.clone(), g, &noise, 200.0);
+        let mut direct = crate::arm::Dynamics::new(model, g);
         let mut expected = vec![0.0; 2];
         assert!(direct.forward_dynamics(&q, &qd, &u, &mut expected));
         let t = prediction.evaluate(&x, &u);

@@ -16,6 +16,7 @@
 
 use std::sync::Arc;
 
+use crate::arm::model_error::{ModelUncertainty, length_scale};
 use crate::arm::{ArmModel, Dynamics};
 use crate::gp::GpModel;
 use crate::sensors::ChannelLayout;
@@ -73,6 +74,15 @@ pub struct ArmTransition {
     acceleration: Vec<f64>,
     noise: Vec<f64>,
     fallback: ConstantVelocity,
+    uncertainty: ModelUncertainty,
+    /// Scratch: each joint's acceleration variance from the parameter errors.
+    acceleration_var: Vec<f64>,
+    /// Per joint, the gravity-torque error (N m, one standard deviation) of the centres of mass
+    /// beyond it: g sqrt(sum_b (com m_b L_b)^2).
+    com_torque: Vec<f64>,
+    /// Scratch: each joint's torque error and a column of M^-1.
+    torque_error: Vec<f64>,
+    column: Vec<f64>,
 }
 
 impl ArmTransition {
@@ -93,7 +103,72 @@ impl ArmTransition {
             acceleration: vec![0.0; n],
             noise: vec![0.0; n],
             fallback: ConstantVelocity::new(n, fallback),
+            uncertainty: ModelUncertainty::default(),
+            acceleration_var: vec![0.0; n],
+            com_torque: vec![0.0; n],
+            torque_error: vec![0.0; n],
+            column: vec![0.0; n],
         }
+    }
+
+    /// The same transition with the model's assumed parameter errors in its process noise: each
+    /// joint's torque error sigma_tau_j = sqrt((max(mass, inertia) (M qdd)_j)^2 + (mass bias_j)^2 +
+    /// (com torque_j)^2 + (damping D_j qd_j)^2 + (friction F_j)^2), carried to the accelerations through M^-1,
+    /// sigma_i = sqrt(sum_j (M^-1_ij sigma_tau_j)^2); the noise is the largest of the floor, the
+    /// relative term and sigma_i (docs/method.md, "Model error").
+    pub fn with_uncertainty(mut self, uncertainty: ModelUncertainty) -> Self {
+        let model = self.dynamics.model().clone();
+        let g = self.dynamics.gravity().norm();
+        let mut sums = vec![0.0; model.joints.len()];
+        for (b, body) in model.bodies.iter().enumerate().skip(1) {
+            let moment = uncertainty.com * body.mass * length_scale(&model, b) * g;
+            // Every joint on the path from the body to the root carries it.
+            let mut at = b;
+            while let Some(j) = model.joints.iter().position(|j| j.child_body == at) {
+                sums[j] += moment * moment;
+                at = model.joints[j].parent_body;
+            }
+        }
+        self.com_torque = sums.into_iter().map(f64::sqrt).collect();
+        self.uncertainty = uncertainty;
+        self
+    }
+
+    /// The per-joint acceleration error of the model's parameter errors at the state last
+    /// evaluated, into `noise` as a lower bound.
+    fn parameter_noise(&mut self, qd: &[f64], torques: &[f64]) {
+        let u = self.uncertainty;
+        let model = self.dynamics.model().clone();
+        for (j, joint) in model.joints.iter().enumerate() {
+            // The inertial torque M qdd the model predicts is off by its mass error too.
+            let inertial = torques[j] - self.dynamics.bias()[j] - joint.damping * qd[j];
+            let terms = [
+                u.mass.max(u.inertia) * inertial,
+                u.mass * self.dynamics.bias()[j],
+                self.com_torque[j],
+                u.damping * joint.damping * qd[j],
+                u.friction * joint.friction,
+            ];
+            self.torque_error[j] = terms.iter().map(|t| t * t).sum::<f64>();
+        }
+        let n = self.noise.len();
+        let mut var = std::mem::take(&mut self.acceleration_var);
+        var.iter_mut().for_each(|v| *v = 0.0);
+        for j in 0..n {
+            if self.torque_error[j] == 0.0 {
+                continue;
+            }
+            self.column.fill(0.0);
+            self.column[j] = 1.0;
+            self.dynamics.solve_factored(&mut self.column);
+            for (v, m) in var.iter_mut().zip(&self.column) {
+                *v += m * m * self.torque_error[j];
+            }
+        }
+        for (s, v) in self.noise.iter_mut().zip(&var) {
+            *s = s.max(v.sqrt());
+        }
+        self.acceleration_var = var;
     }
 
     /// The arm model it predicts with.
@@ -113,6 +188,9 @@ impl TransitionModel for ArmTransition {
         }
         for (s, a) in self.noise.iter_mut().zip(&self.acceleration) {
             *s = self.floor.max(self.relative * a.abs());
+        }
+        if !self.uncertainty.is_zero() {
+            self.parameter_noise(&x[n..], torques);
         }
         Transition {
             acceleration: Some(&self.acceleration),
@@ -207,5 +285,53 @@ mod tests {
         let tr = cv.evaluate(&x, &u);
         assert!(tr.acceleration.is_none());
         assert_eq!(tr.noise, &[200.0, 200.0]);
+    }
+
+    /// The process noise of an uncertain model against a direct evaluation: the torque errors
+    /// of each assumed parameter error carried through M^-1 from nalgebra's inverse.
+    #[test]
+    fn the_parameter_noise_is_the_torque_error_carried_through_the_inverse_mass_matrix() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("urdf/spatial_3dof.urdf");
+        let model = Arc::new(crate::arm::load_urdf(&path).unwrap());
+        let u = ModelUncertainty {
+            mass: 0.15,
+            inertia: 0.3,
+            com: 0.08,
+            damping: 0.5,
+            friction: 0.3,
+        };
+        let g = [0.0, 0.0, -9.81];
+        let mut t = ArmTransition::new(model.clone(), g, 0.0, 0.0, 200.0).with_uncertainty(u);
+        let x = [0.3, -0.7, 0.4, 0.5, -1.0, 0.8];
+        let tau = [4.0, -3.0, 1.0];
+        let noise = t.evaluate(&x, &tau).noise.to_vec();
+        let mut d = Dynamics::new(model.clone(), g);
+        d.set_configuration(&x[..3]);
+        d.compute(&x[3..]);
+        let minv = d.mass_matrix().clone().try_inverse().unwrap();
+        let com = t.com_torque.clone();
+        for i in 0..3 {
+            let mut var = 0.0;
+            for (j, joint) in model.joints.iter().enumerate() {
+                let inertial = tau[j] - d.bias()[j] - joint.damping * x[3 + j];
+                let s2 = (u.mass.max(u.inertia) * inertial).powi(2)
+                    + (u.mass * d.bias()[j]).powi(2)
+                    + com[j].powi(2)
+                    + (u.damping * joint.damping * x[3 + j]).powi(2)
+                    + (u.friction * joint.friction).powi(2);
+                var += minv[(i, j)].powi(2) * s2;
+            }
+            assert!(
+                (noise[i] - var.sqrt()).abs() < 1e-9 * var.sqrt(),
+                "joint {i}: {} against {}",
+                noise[i],
+                var.sqrt()
+            );
+        }
+        // The com term: a body's moment reaches every joint on its path to the root.
+        assert!(
+            com[0] >= com[1] && com[1] >= com[2] && com[2] > 0.0,
+            "{com:?}"
+        );
     }
 }

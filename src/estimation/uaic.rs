@@ -65,31 +65,41 @@ pub enum Prediction {
     Coupled,
 }
 
-/// Settings of the u-AIC's belief. Defaults: Gauss-Newton with eta = 1, coupled prediction,
-/// P_mu = 1e8 and P_mu' = 25 (an acceleration bound of 200 rad/s^2 at dt = 1 ms:
-/// docs/method.md, "Prior scale"), a 100-tick warm-up of the prior.
-#[derive(Clone, Debug, PartialEq)]
+/// Settings of the u-AIC's belief (the scenario's `[belief]` section). Defaults: Gauss-Newton
+/// with eta = 1, coupled prediction, a state prior from an acceleration bound of 200 rad/s^2
+/// (P_mu = 1e8 and P_mu' = 25 at dt = 1 ms: docs/method.md, "Prior scale"), a 100-tick warm-up
+/// of the prior.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(deny_unknown_fields, default)]
 pub struct UaicConfig {
     pub update: UpdateScheme,
     /// Gauss-Newton step length eta in (0, 1].
     pub step: f64,
-    /// Gradient-descent gain kappa_mu (1/s), used by the gradient scheme.
+    /// Gradient-descent gain kappa_mu (1/s), used by `update = "gradient"`.
     pub kappa_mu: f64,
     pub prediction: Prediction,
-    /// Precision of the position prior P_mu (1/rad^2).
-    pub prior_position_precision: f64,
-    /// Precision of the velocity prior P_mu' (s^2/rad^2).
-    pub prior_velocity_precision: f64,
+    /// The joint acceleration (rad/s^2) the state prior treats as one standard deviation: the
+    /// prior precisions default to P_mu = 1 / (a dt^2 / 2)^2 and P_mu' = 1 / (a dt)^2
+    /// (docs/method.md, "Prior scale"), and it is the propagated prior's process noise. 200
+    /// gives P_mu = 1e8 and P_mu' = 25 at dt = 1 ms.
+    pub acceleration_bound: f64,
+    /// Precision of the position prior P_mu (1/rad^2); absent: from `acceleration_bound`.
+    pub prior_position_precision: Option<f64>,
+    /// Precision of the velocity prior P_mu' (s^2/rad^2); absent: from `acceleration_bound`.
+    pub prior_velocity_precision: Option<f64>,
     /// Ticks over which the prior's precisions ramp up from 1/K to 1 times their value, as a
     /// Kalman filter's would from an initial covariance equal to one reading's: the belief
     /// starts at the first (noisy) readings, and a full-strength prior would hold that noise
     /// for about P_mu / encoder precision ticks. 0 disables the ramp.
     pub prior_warmup_ticks: u64,
-    /// Fixed or propagated prior precision.
+    /// `fixed` (P_mu, P_mu') or `propagated` (a Kalman filter's prior precision, its process
+    /// noise from `acceleration_bound`; needs `update = "gauss-newton"`). Every u-AIC method but
+    /// `hybrid`, which takes `hybrid.prior`.
     pub prior: PriorMode,
-    /// The propagated prior's process noise: acceleration as one standard deviation (rad/s^2).
-    pub process_acceleration: f64,
 }
+
+/// The default acceleration bound of the state prior (rad/s^2).
+pub const DEFAULT_ACCELERATION_BOUND: f64 = 200.0;
 
 impl Default for UaicConfig {
     fn default() -> Self {
@@ -98,41 +108,66 @@ impl Default for UaicConfig {
             step: 1.0,
             kappa_mu: 200.0,
             prediction: Prediction::Coupled,
-            prior_position_precision: 1e8,
-            prior_velocity_precision: 25.0,
+            acceleration_bound: DEFAULT_ACCELERATION_BOUND,
+            prior_position_precision: None,
+            prior_velocity_precision: None,
             prior_warmup_ticks: 100,
             prior: PriorMode::Fixed,
-            process_acceleration: 200.0,
         }
     }
 }
 
 impl UaicConfig {
-    /// Checks the settings; returns the offending field and why.
-    pub fn validate(&self) -> Result<(), (String, String)> {
+    /// The state prior's precisions (P_mu, P_mu') at tick `dt`: as given, else from the
+    /// acceleration bound a: P_mu = 1 / (a dt^2 / 2)^2, P_mu' = 1 / (a dt)^2.
+    pub fn prior_precisions(&self, dt: f64) -> (f64, f64) {
+        let a = self.acceleration_bound;
+        (
+            self.prior_position_precision
+                .unwrap_or_else(|| 1.0 / (0.5 * a * dt * dt).powi(2)),
+            self.prior_velocity_precision
+                .unwrap_or_else(|| 1.0 / (a * dt).powi(2)),
+        )
+    }
+
+    /// Checks the settings at tick `dt`.
+    pub fn validate(&self, dt: f64) -> Result<(), crate::SettingError> {
         let positive = |name: &str, v: f64| {
             if v.is_finite() && v > 0.0 && v <= 1e300 {
                 Ok(())
             } else {
-                Err((name.to_string(), format!("{v} must be finite and > 0")))
+                Err(crate::SettingError::new(
+                    name,
+                    format!("{v} must be finite and > 0"),
+                ))
             }
         };
-        positive("step", self.step)?;
-        if self.step > 1.0 {
-            return Err(("step".into(), "must be <= 1".into()));
-        }
-        positive("kappa_mu", self.kappa_mu)?;
-        positive("prior_position_precision", self.prior_position_precision)?;
-        positive("process_acceleration", self.process_acceleration)?;
-        if self.prior == PriorMode::Propagated && self.update != UpdateScheme::GaussNewton {
-            return Err((
-                "prior".into(),
-                "\"propagated\" needs update = \"gauss-newton\"".into(),
+        let a = self.acceleration_bound;
+        if !(a.is_finite() && a > 0.0 && a <= 1e9) {
+            return Err(crate::SettingError::new(
+                "acceleration_bound",
+                format!("{a} must be finite, > 0 and <= 1e9 rad/s^2"),
             ));
         }
-        positive("prior_velocity_precision", self.prior_velocity_precision)?;
+        positive("step", self.step)?;
+        if self.step > 1.0 {
+            return Err(crate::SettingError::new("step", "must be <= 1"));
+        }
+        positive("kappa_mu", self.kappa_mu)?;
+        let (pm, pv) = self.prior_precisions(dt);
+        positive("prior_position_precision", pm)?;
+        if self.prior == PriorMode::Propagated && self.update != UpdateScheme::GaussNewton {
+            return Err(crate::SettingError::new(
+                "prior",
+                "\"propagated\" needs update = \"gauss-newton\"",
+            ));
+        }
+        positive("prior_velocity_precision", pv)?;
         if self.prior_warmup_ticks > 1_000_000_000 {
-            return Err(("prior_warmup_ticks".into(), "must be <= 1e9 ticks".into()));
+            return Err(crate::SettingError::new(
+                "prior_warmup_ticks",
+                "must be <= 1e9 ticks",
+            ));
         }
         Ok(())
     }
@@ -141,6 +176,9 @@ impl UaicConfig {
 /// The u-AIC's belief.
 pub struct Uaic {
     config: UaicConfig,
+    /// The state prior's precisions P_mu, P_mu' at this tick length.
+    prior_position_precision: f64,
+    prior_velocity_precision: f64,
     layout: ChannelLayout,
     /// What each channel reads at a state (the camera through its GP).
     observation: Arc<dyn ObservationModel>,
@@ -184,8 +222,11 @@ impl Uaic {
         let layout = *observation.layout();
         let n = layout.n_joints();
         let r = layout.camera_outputs();
+        let (pm, pv) = config.prior_precisions(dt);
         Self {
             config,
+            prior_position_precision: pm,
+            prior_velocity_precision: pv,
             layout,
             observation,
             dt,
@@ -275,7 +316,7 @@ impl Uaic {
                 q[(n + r, n + c)] = pvv;
             }
         }
-        let s2 = self.config.process_acceleration.powi(2);
+        let s2 = self.config.acceleration_bound.powi(2);
         for i in 0..n {
             q[(i, i)] += s2 * dt.powi(4) / 4.0;
             q[(i, n + i)] += s2 * dt.powi(3) / 2.0;
@@ -300,12 +341,11 @@ impl Uaic {
                 self.prior_factor = DMatrix::zeros(d, d);
                 self.prior_info.fill(0.0);
                 for i in 0..n {
-                    self.prior_info[(i, i)] = self.config.prior_position_precision;
-                    self.prior_info[(n + i, n + i)] = self.config.prior_velocity_precision;
+                    self.prior_info[(i, i)] = self.prior_position_precision;
+                    self.prior_info[(n + i, n + i)] = self.prior_velocity_precision;
                 }
                 self.prior_log_det = n as f64
-                    * (self.config.prior_position_precision.ln()
-                        + self.config.prior_velocity_precision.ln());
+                    * (self.prior_position_precision.ln() + self.prior_velocity_precision.ln());
             }
         }
     }
@@ -319,8 +359,8 @@ impl Uaic {
             ((self.updates + 1) as f64 / k as f64).min(1.0)
         };
         (
-            self.config.prior_position_precision * scale,
-            self.config.prior_velocity_precision * scale,
+            self.prior_position_precision * scale,
+            self.prior_velocity_precision * scale,
         )
     }
 

@@ -69,6 +69,8 @@ pub struct DetectorConfig {
     pub cusum_drift: f64,
     /// CUSUM alarm threshold h (healthy standard deviations).
     pub cusum_threshold: f64,
+    /// A calibration file (relative to the scenario file); default: calibrate on the fly.
+    pub calibration: Option<std::path::PathBuf>,
 }
 
 impl Default for DetectorConfig {
@@ -82,6 +84,7 @@ impl Default for DetectorConfig {
             test: DetectorTest::Chebyshev,
             cusum_drift: 1.0,
             cusum_threshold: 200.0,
+            calibration: None,
         }
     }
 }
@@ -90,30 +93,36 @@ impl Default for DetectorConfig {
 pub const MAX_CALIBRATION_RUNS: usize = 10_000;
 
 impl DetectorConfig {
-    pub fn validate(&self) -> Result<(), (&'static str, String)> {
+    pub fn validate(&self) -> Result<(), crate::SettingError> {
         if !(self.alpha > 0.0 && self.alpha < 1.0) {
-            return Err(("alpha", "must be in (0, 1)".into()));
+            return Err(crate::SettingError::new("alpha", "must be in (0, 1)"));
         }
         if !(2..=MAX_CALIBRATION_RUNS).contains(&self.calibration_runs) {
-            return Err((
+            return Err(crate::SettingError::new(
                 "calibration_runs",
                 format!("must be in 2..={MAX_CALIBRATION_RUNS}"),
             ));
         }
         if self.pool_ticks > 10_000 {
-            return Err(("pool_ticks", "must be <= 10000".into()));
+            return Err(crate::SettingError::new("pool_ticks", "must be <= 10000"));
         }
         if self.rearm_ticks > 1_000_000_000 {
-            return Err(("rearm_ticks", "must be <= 1e9".into()));
+            return Err(crate::SettingError::new("rearm_ticks", "must be <= 1e9"));
         }
         if !(self.cusum_drift.is_finite() && self.cusum_drift >= 0.0 && self.cusum_drift <= 1e3) {
-            return Err(("cusum_drift", "must be in [0, 1e3]".into()));
+            return Err(crate::SettingError::new(
+                "cusum_drift",
+                "must be in [0, 1e3]",
+            ));
         }
         if !(self.cusum_threshold.is_finite()
             && self.cusum_threshold > 0.0
             && self.cusum_threshold <= 1e9)
         {
-            return Err(("cusum_threshold", "must be in (0, 1e9]".into()));
+            return Err(crate::SettingError::new(
+                "cusum_threshold",
+                "must be in (0, 1e9]",
+            ));
         }
         Ok(())
     }
@@ -924,11 +933,11 @@ mod tests {
             cusum_threshold: 0.0,
             ..DetectorConfig::default()
         };
-        assert_eq!(bad.validate().unwrap_err().0, "cusum_threshold");
+        assert_eq!(bad.validate().unwrap_err().field, "cusum_threshold");
         let bad = DetectorConfig {
             cusum_drift: f64::NAN,
             ..DetectorConfig::default()
         };
-        assert_eq!(bad.validate().unwrap_err().0, "cusum_drift");
+        assert_eq!(bad.validate().unwrap_err().field, "cusum_drift");
     }
 }

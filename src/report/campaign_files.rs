@@ -249,9 +249,13 @@ fn markdown(
     for (a, arm) in c.arms.iter().enumerate() {
         let _ = write!(
             out,
-            "\n## {} (`{}`)\n\n| cell |",
+            "\n## {} (`{}`)\n\n{}\n\n| cell |",
             arm.name,
-            arm.scenario.display()
+            arm.scenario.display(),
+            records
+                .conditions
+                .get(a)
+                .map_or_else(String::new, |c| c.markdown())
         );
         for m in &campaign.methods {
             let _ = write!(out, " {m} |");
@@ -373,6 +377,10 @@ pub fn campaign_json(
         "aift_version": env!("CARGO_PKG_VERSION"),
         "campaign": campaign.config.name,
         "fingerprint": records.fingerprint,
+        "arms": campaign.config.arms.iter().zip(&records.conditions).map(|(a, c)| json!({
+            "name": a.name,
+            "conditions": c.json(),
+        })).collect::<Vec<_>>(),
         "seeds": campaign.config.seeds,
         "methods": campaign.methods.iter().map(|m| m.name()).collect::<Vec<_>>(),
         "verdict": {

@@ -1,6 +1,6 @@
 //! The files of one run: trajectory (streamed while the run goes), summary, the scenario as run,
 //! plots, and what is needed to repeat the run from its folder alone (URDF, GP model, detector
-//! calibration). [`run_into`] does all of it into a staged folder and moves the folder into
+//! calibration). [`run_staged`] does all of it into a staged folder, which the caller moves into
 //! place only when every file is written.
 
 use std::path::{Path, PathBuf};
@@ -11,7 +11,7 @@ use super::{ReportError, plots, write_atomic};
 use crate::fsio::{self, Staged};
 use crate::precision::Calibration;
 use crate::scenario::{
-    self, Method, Observers, Outcome, RunResult, RunSetup, ScenarioError, TrajectoryColumns,
+    Method, ObserverMode, Observers, Run, RunResult, RunSetup, ScenarioError, TrajectoryColumns,
     TrajectoryRecorder, TrajectorySchema, TrajectoryWriter,
 };
 
@@ -47,11 +47,9 @@ pub fn summary_json(setup: &RunSetup, result: &RunResult) -> serde_json::Value {
             .collect()
     };
     let dt = setup.scenario().dt;
-    let ended = match &result.outcome {
-        Outcome::Diverged { tick, reason } | Outcome::Stopped { tick, reason } => {
-            json!({"t": *tick as f64 * dt, "reason": reason})
-        }
-        Outcome::Completed => serde_json::Value::Null,
+    let ended = match result.outcome.early_end() {
+        Some((tick, reason)) => json!({"t": tick as f64 * dt, "reason": reason}),
+        None => serde_json::Value::Null,
     };
     let layout = setup.layout;
     let names = |cs: &[usize]| cs.iter().map(|&c| layout.name(c)).collect::<Vec<_>>();
@@ -59,6 +57,7 @@ pub fn summary_json(setup: &RunSetup, result: &RunResult) -> serde_json::Value {
         "format_version": SUMMARY_FORMAT,
         "aift_version": env!("CARGO_PKG_VERSION"),
         "scenario": setup.scenario().name,
+        "conditions": setup.conditions().json(),
         "method": result.method,
         "seed": result.seed,
         "outcome": result.outcome.name(),
@@ -102,17 +101,19 @@ pub fn summary_json(setup: &RunSetup, result: &RunResult) -> serde_json::Value {
 /// pointing at the copies in the run folder.
 pub fn resolved_scenario(
     setup: &RunSetup,
-    method: Method,
+    method: Option<Method>,
     seed: u64,
     with_calibration: bool,
 ) -> String {
     let mut s = setup.scenario().clone();
-    s.precision.method = method;
+    if let Some(method) = method {
+        s.precision.method = method;
+    }
     s.seed = seed;
     // Derived values pinned, so the file runs the same even if a default changes.
-    let (pm, pv) = s.controller.prior_precisions(s.dt);
-    s.controller.prior_position_precision = Some(pm);
-    s.controller.prior_velocity_precision = Some(pv);
+    let (pm, pv) = s.belief.prior_precisions(s.dt);
+    s.belief.prior_position_precision = Some(pm);
+    s.belief.prior_velocity_precision = Some(pv);
     s.robot.urdf = PathBuf::from(ROBOT);
     s.gp.model = Some(PathBuf::from(GP_MODEL));
     s.detector.calibration = with_calibration.then(|| PathBuf::from(CALIBRATION));
@@ -130,7 +131,7 @@ pub fn resolved_scenario(
 pub fn write_run(
     dir: &Path,
     setup: &RunSetup,
-    method: Method,
+    method: Option<Method>,
     result: &RunResult,
     plots_rows: &TrajectoryRecorder,
     trajectory_rows: u64,
@@ -163,64 +164,29 @@ pub fn write_run(
     write_atomic(&dir.join(super::html::REPORT), page.as_bytes())
 }
 
-/// Runs `method` with `seed` and writes the whole run folder into `staged`, which is moved into
-/// place once every file is written. The trajectory streams to its file while the run goes
-/// (every `record_every`-th tick), so memory does not grow with the run.
-pub fn run_into(
-    staged: Staged,
-    setup: &RunSetup,
-    method: Method,
-    seed: u64,
-    calibration: Option<&Calibration>,
-) -> Result<RunResult, ReportError> {
-    let result = run_staged(
-        &staged,
-        setup,
-        method,
-        seed,
-        calibration,
-        &mut scenario::NoObserver,
-    )?;
-    staged.commit()?;
-    Ok(result)
-}
-
-/// [`run_into`] without the commit, and with one more observer of the caller's watching the run:
-/// every file is written into `staged`, and the caller commits it (or drops it, and nothing
-/// appears: after an interrupted run, say).
-pub fn run_staged(
-    staged: &Staged,
-    setup: &RunSetup,
-    method: Method,
-    seed: u64,
-    calibration: Option<&Calibration>,
-    extra: &mut dyn scenario::Observer,
-) -> Result<RunResult, ReportError> {
+/// Executes `run` and writes the whole run folder into `staged`: the trajectory streams to its
+/// file while the run goes (every `record_every`-th tick), so memory does not grow with the run.
+/// The caller commits `staged` (or drops it, and nothing appears: after an interrupted run, say).
+pub fn run_staged(staged: &Staged, run: Run<'_>) -> Result<RunResult, ReportError> {
+    let setup = run.setup();
+    let method = run.method();
     let dir = staged.path().to_path_buf();
     let path = dir.join(TRAJECTORY);
     let file = std::fs::File::create(&path).map_err(|source| fsio::FsError::Write {
         path: path.clone(),
         source,
     })?;
-    let mut writer = TrajectoryWriter::new(
-        TrajectorySchema::new(&setup.layout),
-        file,
-        setup.scenario().record_every,
-    );
+    let every = setup.scenario().record_every;
+    let mut writer = TrajectoryWriter::new(TrajectorySchema::new(&setup.layout), file);
     // The rows of the trajectory file (every `record_every`-th tick), decimated as a reader of
     // that file decimates them: `aift report` on the folder draws the same page.
-    let mut plot_rows = TrajectoryRecorder::bounded_with_stride(
-        &setup.layout,
-        PLOT_ROWS,
-        setup.scenario().record_every,
-    );
-    let result = scenario::run(
-        setup,
-        method,
-        seed,
-        calibration,
-        &mut Observers(vec![&mut writer, &mut plot_rows, extra]),
-    )?;
+    let mut plot_rows = TrajectoryRecorder::bounded_with_stride(&setup.layout, PLOT_ROWS, every);
+    let calibration = run.calibration_given();
+    let mut observers = Observers::new();
+    observers.push(&mut writer, ObserverMode::Every(every));
+    observers.push(&mut plot_rows, ObserverMode::Always);
+    let result = run.execute_with(&mut observers)?;
+    drop(observers);
     let write_err = |source| fsio::FsError::Write {
         path: path.clone(),
         source,
@@ -243,15 +209,13 @@ pub fn run_staged(
     Ok(result)
 }
 
-/// Runs `method` with `seed` without touching disk: the result, its summary (as summary.json
-/// has it) and the whole trajectory (every `record_every`-th tick, as trajectory.csv has it).
-/// The trajectory's size is checked before the run starts.
+/// Executes `run` without touching disk: the result, its summary (as summary.json has it) and
+/// the whole trajectory (every `record_every`-th tick, as trajectory.csv has it). The
+/// trajectory's size is checked before the run starts.
 pub fn run_in_memory(
-    setup: &RunSetup,
-    method: Method,
-    seed: u64,
-    calibration: Option<&Calibration>,
+    run: Run<'_>,
 ) -> Result<(RunResult, serde_json::Value, TrajectoryColumns), ScenarioError> {
+    let setup = run.setup();
     let sc = setup.scenario();
     let mut columns =
         TrajectoryColumns::new(&setup.layout, sc.ticks(), sc.record_every).map_err(|message| {
@@ -261,7 +225,10 @@ pub fn run_in_memory(
                 message,
             }
         })?;
-    let result = scenario::run(setup, method, seed, calibration, &mut columns)?;
+    let mut observers = Observers::new();
+    observers.push(&mut columns, ObserverMode::Every(sc.record_every));
+    let result = run.execute_with(&mut observers)?;
+    drop(observers);
     let summary = summary_json(setup, &result);
     Ok((result, summary, columns))
 }

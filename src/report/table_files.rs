@@ -101,6 +101,7 @@ pub fn table_json(setup: &RunSetup, table: &Table) -> serde_json::Value {
         "format_version": TABLE_FORMAT,
         "aift_version": env!("CARGO_PKG_VERSION"),
         "scenario": setup.scenario().name,
+        "conditions": setup.conditions().json(),
         "seeds": table.seeds,
         "rows": table.rows.iter().map(|r| json!({
             "method": r.method.name(),
@@ -140,12 +141,13 @@ pub fn is_paper_experiment(setup: &RunSetup) -> bool {
 pub fn table_markdown(setup: &RunSetup, table: &Table) -> String {
     let paper_columns = is_paper_experiment(setup);
     let mut out = format!(
-        "# {} over {} seeds ({}..={})\n\nMSE of the belief against the truth, (mu - q)^2 averaged over the run; \
+        "# {} over {} seeds ({}..={})\n\n{}\n\nMSE of the belief against the truth, (mu - q)^2 averaged over the run; \
          faulty = joints whose own sensor is faulty, healthy = the others. {}\n\n",
         setup.scenario().name,
         table.seeds.len(),
         table.seeds.first().copied().unwrap_or(0),
         table.seeds.last().copied().unwrap_or(0),
+        setup.conditions().markdown(),
         if paper_columns {
             "Paper = the seed paper's Table 1 (the same experiment: an encoder freeze)."
         } else {

@@ -4,7 +4,8 @@
 use std::hint::black_box;
 use std::time::Instant;
 
-use super::{Method, NoObserver, RunSetup, ScenarioError, run};
+use super::runner::Run;
+use super::{Method, RunSetup, ScenarioError};
 use crate::estimation::uaic::Uaic;
 use crate::estimation::{Estimate, Estimator, EstimatorInput};
 use crate::precision::{Gradient, PrecisionInput, PrecisionMethod};
@@ -72,8 +73,8 @@ pub fn bench(setup: &RunSetup, ticks: u64) -> Result<Vec<Figure>, ScenarioError>
     // Controller: one belief update (GP included) and f*, on fixed readings.
     let nominal: Vec<f64> = super::runner::nominal_precisions(sensors.sigmas());
     let observation = crate::estimation::models::GpCamera::shared(layout, setup.gp.clone());
-    let mut belief = Uaic::new(sc.controller.uaic(dt), observation, dt);
-    let mut control = crate::control::Control::new(&sc.controller.control());
+    let mut belief = Uaic::new(sc.belief.clone(), observation, dt);
+    let mut control = crate::control::Control::new(&sc.controller);
     let zeros = vec![0.0; n];
     let start = Instant::now();
     for k in 0..ticks {
@@ -113,7 +114,7 @@ pub fn bench(setup: &RunSetup, ticks: u64) -> Result<Vec<Figure>, ScenarioError>
     let learner_us = per_tick(start);
 
     // The closed loop: one whole run.
-    let result = run(setup, Method::PlAlways, sc.seed, None, &mut NoObserver)?;
+    let result = Run::new(setup, Method::PlAlways).seed(sc.seed).execute()?;
     let closed_loop = result.ticks_per_second();
     let closed_us = 1e6 / closed_loop;
 

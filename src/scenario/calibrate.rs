@@ -19,7 +19,7 @@ pub const CALIBRATION_SEED_BASE: u64 = 1 << 40;
 struct InnovationSums<'a>(&'a mut CalibrationAccumulator);
 
 impl Observer for InnovationSums<'_> {
-    fn on_tick(&mut self, r: &TickRecord<'_>) {
+    fn iter(&mut self, r: &TickRecord<'_>) {
         self.0.add(r.tick as usize, &r.estimate.innovations);
     }
 }
@@ -38,13 +38,11 @@ pub fn calibrate(setup: &RunSetup, runs: usize) -> Result<Calibration, ScenarioE
         .into_par_iter()
         .map(|i| {
             let mut acc = CalibrationAccumulator::new(layout, ticks);
-            let result = super::run(
-                &healthy,
-                Method::NoFt,
-                CALIBRATION_SEED_BASE + i,
-                None,
-                &mut InnovationSums(&mut acc),
-            )?;
+            let mut sums = InnovationSums(&mut acc);
+            let result = super::runner::Run::new(&healthy, Method::NoFt)
+                .seed(CALIBRATION_SEED_BASE + i)
+                .observe(&mut sums, super::runner::ObserverMode::Always)
+                .execute()?;
             if result.ticks_run < ticks as u64 {
                 return Err(ScenarioError::Calibration {
                     path: setup.loaded.path.clone(),

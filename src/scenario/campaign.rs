@@ -25,7 +25,8 @@ use serde::{Deserialize, Serialize};
 
 use super::calibrate;
 use super::runner::{Observer, TickRecord};
-use super::{LoadedScenario, Method, RunResult, RunSetup, ScenarioError, run};
+use super::runner::{ObserverMode, Run};
+use super::{LoadedScenario, Method, RunResult, RunSetup, ScenarioError};
 use crate::fsio;
 use crate::precision::Calibration;
 use crate::sensors::{ChannelSelection, FaultKind, FaultSpec};
@@ -230,9 +231,10 @@ pub struct ArmEntry {
     /// Joints (1-based) that `enc*` and `tach*` expand to.
     #[serde(default = "first_joint")]
     pub joints: Vec<usize>,
-    /// Overrides of the template (`KEY=VALUE`, as `--set`).
+    /// Scenario keys laid over the template (after the campaign's `[defaults]`), as a scenario
+    /// file writes them (`[arms.overrides.plant] engine = "rapier"`).
     #[serde(default)]
-    pub set: Vec<String>,
+    pub overrides: toml::Table,
 }
 
 fn first_joint() -> Vec<usize> {
@@ -289,9 +291,12 @@ pub struct CampaignConfig {
     pub verdict: VerdictConfig,
     #[serde(default)]
     pub onsets: OnsetConfig,
-    /// Overrides applied to every arm's template (before the arm's own).
+    /// Scenario keys laid over every arm's template (before the arm's own `overrides`), as a
+    /// scenario file writes them: `[defaults] duration = 15.0`, `[defaults.plant] engine =
+    /// "articulated"`. Typed by the scenario's schema when merged; errors name this file and
+    /// `defaults.KEY`.
     #[serde(default)]
-    pub set: Vec<String>,
+    pub defaults: toml::Table,
     pub arms: Vec<ArmEntry>,
     /// Fault channels: `enc*` and `tach*` (each of the arm's joints), `cam` (every camera
     /// output), or any scenario selector (`enc2`, `cam_u`).
@@ -320,10 +325,17 @@ impl CampaignConfig {
         let de = toml::Deserializer::parse(&text).map_err(|e| parse(e.to_string()))?;
         serde_path_to_error::deserialize(de).map_err(|e| {
             let key = e.path().to_string();
-            parse(if key == "." {
-                e.into_inner().to_string()
+            let message = e.into_inner().to_string();
+            let hint = if message.contains("unknown field `set`") {
+                "; `set = [...]` strings became tables with the scenario's own keys: `[defaults]` \
+                 for every arm, `[arms.overrides]` for one"
             } else {
-                format!("`{key}`: {}", e.into_inner())
+                ""
+            };
+            parse(if key == "." {
+                format!("{}{hint}", message.trim_end())
+            } else {
+                format!("`{key}`: {}{hint}", message.trim_end())
             })
         })
     }
@@ -559,10 +571,20 @@ impl Campaign {
             if arm.joints.is_empty() {
                 return Err(bad(&format!("{field}.joints"), "lists no joint".into()));
             }
-            let mut sets: Vec<String> = config.set.clone();
-            sets.extend(arm.set.iter().cloned());
-            sets.extend(overrides.iter().cloned());
-            let loaded = LoadedScenario::from_file(&base.join(&arm.scenario), &sets)?;
+            let layers = [
+                super::Layer {
+                    file: path.to_path_buf(),
+                    key: "defaults".into(),
+                    table: config.defaults.clone(),
+                },
+                super::Layer {
+                    file: path.to_path_buf(),
+                    key: format!("{field}.overrides"),
+                    table: arm.overrides.clone(),
+                },
+            ];
+            let loaded =
+                LoadedScenario::from_file_layered(&base.join(&arm.scenario), &layers, overrides)?;
             let setup = RunSetup::prepare(loaded)?;
             let sc = setup.scenario();
             let n = setup.layout.n_joints();
@@ -613,13 +635,13 @@ impl Campaign {
             let setup = &arms[cell.arm];
             let sc = setup.scenario();
             for (k, f) in cell.faults.iter().enumerate() {
-                f.to_fault(&setup.layout).map_err(|(field, m)| {
+                f.to_fault(&setup.layout).map_err(|e| {
                     bad(
                         &format!(
-                            "cell `{}` of arm {}: fault {k}.{field}",
-                            cell.label, config.arms[cell.arm].name
+                            "cell `{}` of arm {}: fault {k}.{}",
+                            cell.label, config.arms[cell.arm].name, e.field
                         ),
-                        m,
+                        e.message,
                     )
                 })?;
                 if f.start >= sc.duration {
@@ -787,7 +809,7 @@ impl RecoveryObserver {
 }
 
 impl Observer for RecoveryObserver {
-    fn on_tick(&mut self, r: &TickRecord<'_>) {
+    fn iter(&mut self, r: &TickRecord<'_>) {
         let e = self
             .joints
             .iter()
@@ -857,7 +879,11 @@ fn run_job(
     }
     let fault_tick = setup.faults.iter().map(|f| f.start_tick(dt)).min();
     let mut recovery = RecoveryObserver::new(joints.clone(), fault_tick.unwrap_or(u64::MAX), dt);
-    let r = run(setup, method, seed, calibration, &mut recovery)?;
+    let r = Run::new(setup, method)
+        .seed(seed)
+        .calibration(calibration)
+        .observe(&mut recovery, ObserverMode::Always)
+        .execute()?;
     let mse_post = match &r.mse_post_fault_per_joint {
         Some(post) => joints.iter().map(|&j| post[j]).sum::<f64>() / joints.len() as f64,
         None => r.mse_per_joint.iter().sum::<f64>() / n as f64,
@@ -936,6 +962,8 @@ pub struct CampaignRecords {
     pub fingerprint: String,
     pub shard: Shard,
     pub jobs: usize,
+    /// Each arm's plant and model error, in the order of the arms.
+    pub conditions: Vec<super::Conditions>,
     pub runs: Vec<CampaignRun>,
     pub reaching: Vec<ReachingRun>,
 }
@@ -1024,6 +1052,7 @@ pub fn run_campaign(
         fingerprint: campaign.fingerprint.clone(),
         shard,
         jobs: all.len() + reaching.len(),
+        conditions: campaign.arms.iter().map(RunSetup::conditions).collect(),
         runs,
         reaching: reaching_runs,
     })
@@ -1045,6 +1074,12 @@ pub fn merge(shards: &[CampaignRecords]) -> Result<CampaignRecords, String> {
                 s.fingerprint,
                 first.campaign,
                 first.fingerprint
+            ));
+        }
+        if s.conditions != first.conditions {
+            return Err(format!(
+                "shard {}/{} ran under other conditions (plant or model error)",
+                s.shard.index, s.shard.count
             ));
         }
         if s.shard.count != first.shard.count || s.jobs != first.jobs {
@@ -1101,6 +1136,7 @@ pub fn merge(shards: &[CampaignRecords]) -> Result<CampaignRecords, String> {
         fingerprint: first.fingerprint.clone(),
         shard: Shard::WHOLE,
         jobs: first.jobs,
+        conditions: first.conditions.clone(),
         runs,
         reaching,
     })
@@ -1411,7 +1447,7 @@ struct ReachingObserver {
 }
 
 impl Observer for ReachingObserver {
-    fn on_tick(&mut self, r: &TickRecord<'_>) {
+    fn iter(&mut self, r: &TickRecord<'_>) {
         self.last_tick = r.tick;
         for j in 0..self.target.len() {
             let e = r.mu[j] - r.q[j];
@@ -1481,7 +1517,11 @@ fn run_reaching(
             last_tick: 0,
             band: band.clone(),
         };
-        let r = run(&setup, m, 1, calibration.as_ref(), &mut obs)?;
+        let r = Run::new(&setup, m)
+            .seed(1)
+            .calibration(calibration.as_ref())
+            .observe(&mut obs, ObserverMode::Always)
+            .execute()?;
         let settling_time = match obs.last_outside {
             None => Some(0.0),
             Some(k) if k >= obs.last_tick => None,

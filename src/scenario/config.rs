@@ -5,9 +5,11 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use super::{Method, ScenarioError};
-use crate::control::{ControlConfig, PidGains};
-use crate::estimation::uaic::{Prediction, UaicConfig, UpdateScheme};
-use crate::precision::{DetectorConfig, DetectorTest, Isolation, PrecisionBounds};
+use crate::SettingError;
+use crate::arm::ModelConfig;
+use crate::control::ControlConfig;
+use crate::estimation::uaic::{UaicConfig, UpdateScheme};
+use crate::precision::{DetectorConfig, PrecisionBounds};
 use crate::sensors::{CameraConfig, ChannelLayout, FaultSpec, SensorConfig};
 
 /// A scenario: the arm, its start and targets, sensors, camera, GP, controller, precision
@@ -34,6 +36,10 @@ pub struct Scenario {
     /// The simulated arm's engine and its settings.
     #[serde(default)]
     pub plant: crate::plant::PlantSettings,
+    /// The arm model the estimators that carry one are given: the URDF with errors (drawn per
+    /// run by default), and how much they trust it.
+    #[serde(default)]
+    pub model: ModelConfig,
     pub initial: InitialState,
     /// Set points: from `time` on, the target is `q`.
     pub targets: Vec<Target>,
@@ -43,12 +49,16 @@ pub struct Scenario {
     pub camera: CameraConfig,
     #[serde(default)]
     pub gp: GpConfig,
+    /// The u-AIC's belief: its update, prediction and state prior.
     #[serde(default)]
-    pub controller: ControllerConfig,
+    pub belief: UaicConfig,
+    /// The control law f* and the action.
+    #[serde(default)]
+    pub controller: ControlConfig,
     #[serde(default)]
     pub precision: PrecisionConfig,
     #[serde(default)]
-    pub detector: DetectorSettings,
+    pub detector: DetectorConfig,
     /// Settings of the Kalman-filter baselines (`ekf-gate`, `vb-akf`, `imm`).
     #[serde(default)]
     pub kalman: crate::estimation::kalman::KalmanConfig,
@@ -168,112 +178,45 @@ impl Default for GpConfig {
     }
 }
 
-/// The `[controller]` section: the u-AIC's belief ([`UaicConfig`]) and the control stage
-/// ([`ControlConfig`]) in one table, as users write it. Defaults are those two structs'.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
-#[serde(deny_unknown_fields, default)]
-pub struct ControllerConfig {
-    pub update: UpdateScheme,
-    /// Gauss-Newton step length eta in (0, 1].
-    pub step: f64,
-    /// Gradient-descent gain kappa_mu (1/s), used by `update = "gradient"`.
-    pub kappa_mu: f64,
-    pub prediction: Prediction,
-    /// The joint acceleration (rad/s^2) the state prior treats as one standard deviation: the
-    /// prior precisions default to P_mu = 1 / (a dt^2 / 2)^2 and P_mu' = 1 / (a dt)^2
-    /// (docs/method.md, "Prior scale"). 200 gives P_mu = 1e8 and P_mu' = 25 at dt = 1 ms.
-    pub acceleration_bound: f64,
-    /// Precision of the position prior P_mu (1/rad^2); absent: from `acceleration_bound`.
-    pub prior_position_precision: Option<f64>,
-    /// Precision of the velocity prior P_mu' (s^2/rad^2); absent: from `acceleration_bound`.
-    pub prior_velocity_precision: Option<f64>,
-    /// Ticks over which the prior's precisions ramp up (0: no ramp).
-    pub prior_warmup_ticks: u64,
-    /// `fixed` (P_mu, P_mu') or `propagated` (a Kalman filter's prior precision, its process
-    /// noise from `acceleration_bound`). Every u-AIC method but `hybrid`, which takes
-    /// `hybrid.prior`.
-    pub prior: crate::estimation::uaic::PriorMode,
-    /// Finite action gain kappa_u (1/s); absent: u = f* (the authors' kappa_u -> infinity).
-    pub kappa_u: Option<f64>,
-    /// Control precision P_u, used with a finite kappa_u.
-    pub control_precision: f64,
-    pub gains: PidGains,
-}
-
-/// The default acceleration bound of the state prior (rad/s^2).
-pub const DEFAULT_ACCELERATION_BOUND: f64 = 200.0;
-
-impl Default for ControllerConfig {
-    fn default() -> Self {
-        let b = UaicConfig::default();
-        let c = ControlConfig::default();
-        Self {
-            update: b.update,
-            step: b.step,
-            kappa_mu: b.kappa_mu,
-            prediction: b.prediction,
-            acceleration_bound: DEFAULT_ACCELERATION_BOUND,
-            prior_position_precision: None,
-            prior_velocity_precision: None,
-            prior_warmup_ticks: b.prior_warmup_ticks,
-            prior: b.prior,
-            kappa_u: c.kappa_u,
-            control_precision: c.control_precision,
-            gains: c.gains,
+impl GpConfig {
+    /// Checks the training settings for an arm of `n_joints` (a saved model needs none).
+    pub fn validate(&self, n_joints: usize) -> Result<(), SettingError> {
+        if self.model.is_some() {
+            return Ok(());
         }
-    }
-}
-
-impl ControllerConfig {
-    /// The state prior's precisions (P_mu, P_mu') at tick `dt`: as given, else from the
-    /// acceleration bound a: P_mu = 1 / (a dt^2 / 2)^2, P_mu' = 1 / (a dt)^2.
-    pub fn prior_precisions(&self, dt: f64) -> (f64, f64) {
-        let a = self.acceleration_bound;
-        (
-            self.prior_position_precision
-                .unwrap_or_else(|| 1.0 / (0.5 * a * dt * dt).powi(2)),
-            self.prior_velocity_precision
-                .unwrap_or_else(|| 1.0 / (a * dt).powi(2)),
-        )
-    }
-
-    /// The u-AIC's belief settings at tick `dt`.
-    pub fn uaic(&self, dt: f64) -> UaicConfig {
-        let (pm, pv) = self.prior_precisions(dt);
-        UaicConfig {
-            update: self.update,
-            step: self.step,
-            kappa_mu: self.kappa_mu,
-            prediction: self.prediction,
-            prior_position_precision: pm,
-            prior_velocity_precision: pv,
-            prior_warmup_ticks: self.prior_warmup_ticks,
-            prior: self.prior,
-            process_acceleration: self.acceleration_bound,
-        }
-    }
-
-    /// The control stage's settings.
-    pub fn control(&self) -> ControlConfig {
-        ControlConfig {
-            gains: self.gains.clone(),
-            kappa_u: self.kappa_u,
-            control_precision: self.control_precision,
-        }
-    }
-
-    /// Checks both parts for an arm of `n_joints` at tick `dt`; returns the offending field and
-    /// why.
-    pub fn validate(&self, n_joints: usize, dt: f64) -> Result<(), (String, String)> {
-        let a = self.acceleration_bound;
-        if !(a.is_finite() && a > 0.0 && a <= 1e9) {
-            return Err((
-                "acceleration_bound".into(),
-                format!("{a} must be finite, > 0 and <= 1e9 rad/s^2"),
+        if self.points < 2 * n_joints + 2 {
+            return Err(SettingError::new(
+                "points",
+                format!("must be >= {} for {n_joints} joints", 2 * n_joints + 2),
             ));
         }
-        self.uaic(dt).validate()?;
-        self.control().validate(n_joints)
+        if self.points > 5000 {
+            return Err(SettingError::new("points", "more than 5000 is refused"));
+        }
+        if !(self.margin.is_finite() && self.margin >= 0.0) {
+            return Err(SettingError::new("margin", "must be finite and >= 0"));
+        }
+        if let Some(b) = &self.training_box {
+            if b.len() != n_joints {
+                return Err(SettingError::new(
+                    "training_box",
+                    format!("has {} rows; the arm has {n_joints} joints", b.len()),
+                ));
+            }
+            if !b
+                .iter()
+                .all(|[lo, hi]| lo.is_finite() && hi.is_finite() && lo < hi)
+            {
+                return Err(SettingError::new(
+                    "training_box",
+                    "each row must be [lower, upper] with lower < upper",
+                ));
+            }
+        }
+        if self.restarts == 0 {
+            return Err(SettingError::new("restarts", "must be >= 1"));
+        }
+        Ok(())
     }
 }
 
@@ -300,6 +243,55 @@ pub struct PrecisionConfig {
 }
 
 impl PrecisionConfig {
+    /// Checks the learners' settings for the channels of `layout` and a run of `ticks` ticks.
+    pub fn validate(&self, layout: &ChannelLayout, ticks: u64) -> Result<(), SettingError> {
+        if !(self.kappa_zeta.is_finite() && self.kappa_zeta > 0.0) {
+            return Err(SettingError::new(
+                "kappa_zeta",
+                format!("{} must be finite and > 0", self.kappa_zeta),
+            ));
+        }
+        if !(self.rho > 0.0 && self.rho < 1.0) {
+            return Err(SettingError::new("rho", "must be in (0, 1)"));
+        }
+        if self.window == 0 || self.window as u64 > ticks.max(1) {
+            return Err(SettingError::new(
+                "window",
+                format!("must be in 1..={} (the run's ticks)", ticks.max(1)),
+            ));
+        }
+        let b = self.bounds();
+        if !(b.min_ratio.is_finite() && b.min_ratio > 0.0) {
+            return Err(SettingError::new("min_ratio", "must be finite and > 0"));
+        }
+        if !(b.max_ratio.is_finite() && b.max_ratio >= b.min_ratio) {
+            return Err(SettingError::new(
+                "max_ratio",
+                "must be finite and >= min_ratio",
+            ));
+        }
+        if let Some(nominal) = &self.nominal {
+            if nominal.len() != layout.len() {
+                return Err(SettingError::new(
+                    "nominal",
+                    format!(
+                        "has {} values; the arm has {} channels ({})",
+                        nominal.len(),
+                        layout.len(),
+                        layout.names().join(", ")
+                    ),
+                ));
+            }
+            if !nominal.iter().all(|w| w.is_finite() && *w > 0.0) {
+                return Err(SettingError::new(
+                    "nominal",
+                    "values must be finite and > 0",
+                ));
+            }
+        }
+        Ok(())
+    }
+
     /// The learners' clamp.
     pub fn bounds(&self) -> PrecisionBounds {
         PrecisionBounds {
@@ -324,63 +316,6 @@ impl Default for PrecisionConfig {
     }
 }
 
-/// Detector settings plus an optional calibration file.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
-#[serde(deny_unknown_fields, default)]
-pub struct DetectorSettings {
-    /// Chebyshev false-alarm bound: alarm when d_M > sqrt(n / alpha).
-    pub alpha: f64,
-    /// `channel` (largest normalised residual) or `group` (the ECC recovery).
-    pub isolation: Isolation,
-    /// Half-width (ticks) of the window the per-step moments are pooled over.
-    pub pool_ticks: usize,
-    /// Healthy runs for an on-the-fly calibration.
-    pub calibration_runs: usize,
-    /// Quiet ticks before an isolated channel is re-admitted (0: never).
-    pub rearm_ticks: u64,
-    /// `chebyshev` (per-tick bound, the ECC paper's) or `cusum` (accumulates slow faults).
-    pub test: DetectorTest,
-    /// CUSUM drift allowance k (healthy standard deviations per tick).
-    pub cusum_drift: f64,
-    /// CUSUM alarm threshold h (healthy standard deviations).
-    pub cusum_threshold: f64,
-    /// A calibration file (relative to the scenario file); default: calibrate on the fly.
-    pub calibration: Option<PathBuf>,
-}
-
-impl Default for DetectorSettings {
-    fn default() -> Self {
-        let d = DetectorConfig::default();
-        Self {
-            alpha: d.alpha,
-            isolation: d.isolation,
-            pool_ticks: d.pool_ticks,
-            calibration_runs: d.calibration_runs,
-            rearm_ticks: d.rearm_ticks,
-            test: d.test,
-            cusum_drift: d.cusum_drift,
-            cusum_threshold: d.cusum_threshold,
-            calibration: None,
-        }
-    }
-}
-
-impl DetectorSettings {
-    /// The detector's configuration.
-    pub fn config(&self) -> DetectorConfig {
-        DetectorConfig {
-            alpha: self.alpha,
-            isolation: self.isolation,
-            pool_ticks: self.pool_ticks,
-            calibration_runs: self.calibration_runs,
-            rearm_ticks: self.rearm_ticks,
-            test: self.test,
-            cusum_drift: self.cusum_drift,
-            cusum_threshold: self.cusum_threshold,
-        }
-    }
-}
-
 impl Scenario {
     /// Number of ticks: round(duration / dt).
     pub fn ticks(&self) -> u64 {
@@ -399,54 +334,81 @@ impl Scenario {
     }
 
     /// Checks everything against the arm's channel layout; errors name `file` and the key.
+    /// Each component checks its own settings ([`SettingError`], its key under its section).
     pub fn validate(&self, layout: &ChannelLayout, file: &Path) -> Result<(), ScenarioError> {
-        let n_joints = layout.n_joints();
-        let bad = |field: &str, message: String| ScenarioError::Invalid {
+        self.check(layout).map_err(|e| ScenarioError::Invalid {
             path: file.to_path_buf(),
-            field: field.to_string(),
-            message,
-        };
-        let positive = |field: &str, v: f64| {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                Err(bad(field, format!("{v} must be finite and > 0")))
-            }
-        };
-        let finite_vec = |field: &str, v: &[f64], len: usize| {
-            if v.len() != len {
-                return Err(bad(
-                    field,
-                    format!("has {} values; the arm has {len} joints", v.len()),
-                ));
-            }
-            if v.iter().all(|x| x.is_finite()) {
-                Ok(())
-            } else {
-                Err(bad(field, "values must be finite".into()))
-            }
-        };
+            field: e.field,
+            message: e.message,
+        })
+    }
+
+    fn check(&self, layout: &ChannelLayout) -> Result<(), SettingError> {
+        let n = layout.n_joints();
+        self.check_run(layout)?;
+        self.check_task(n)?;
+        let within = |section: &'static str| move |e: SettingError| e.within(section);
+        self.plant.validate().map_err(within("plant"))?;
+        self.model.validate().map_err(within("model"))?;
+        self.sensors.validate().map_err(within("sensors"))?;
+        self.camera.validate().map_err(within("camera"))?;
+        self.gp.validate(n).map_err(within("gp"))?;
+        self.belief.validate(self.dt).map_err(within("belief"))?;
+        self.controller.validate(n).map_err(within("controller"))?;
+        self.precision
+            .validate(layout, self.ticks())
+            .map_err(within("precision"))?;
+        self.detector.validate().map_err(within("detector"))?;
+        self.kalman.validate().map_err(within("kalman"))?;
+        self.hybrid.validate().map_err(within("hybrid"))?;
+        if self.hybrid.prior.may_propagate() && self.belief.update != UpdateScheme::GaussNewton {
+            return Err(SettingError::new(
+                "hybrid.prior",
+                format!(
+                    "\"{}\" uses the propagated prior, which needs belief.update = \"gauss-newton\"",
+                    self.hybrid.prior.name()
+                ),
+            ));
+        }
+        if self.faults.len() > MAX_FAULTS {
+            return Err(SettingError::new("faults", format!("at most {MAX_FAULTS}")));
+        }
+        for (i, f) in self.faults.iter().enumerate() {
+            f.to_fault(layout)
+                .map_err(|e| e.within(&format!("faults[{i}]")))?;
+        }
+        Ok(())
+    }
+
+    /// Name, tick, length and recording.
+    fn check_run(&self, layout: &ChannelLayout) -> Result<(), SettingError> {
         if self.name.is_empty()
             || !self
                 .name
                 .chars()
                 .all(|c| c.is_ascii_alphanumeric() || "_-.".contains(c))
         {
-            return Err(bad(
+            return Err(SettingError::new(
                 "name",
-                "must be non-empty letters, digits, '_', '-' or '.'".into(),
+                "must be non-empty letters, digits, '_', '-' or '.'",
             ));
         }
-        positive("dt", self.dt)?;
-        positive("duration", self.duration)?;
+        for (field, v) in [("dt", self.dt), ("duration", self.duration)] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(SettingError::new(
+                    field,
+                    format!("{v} must be finite and > 0"),
+                ));
+            }
+        }
         if self.dt > 0.1 {
-            return Err(bad("dt", "must be <= 0.1 s".into()));
+            return Err(SettingError::new("dt", "must be <= 0.1 s"));
         }
         if self.dt < 1e-6 {
-            return Err(bad("dt", "must be >= 1e-6 s".into()));
+            return Err(SettingError::new("dt", "must be >= 1e-6 s"));
         }
         if self.ticks() == 0 {
-            return Err(bad(
+            return Err(SettingError::new(
                 "duration",
                 format!(
                     "{} s is shorter than one tick (dt = {} s)",
@@ -455,7 +417,7 @@ impl Scenario {
             ));
         }
         if self.duration / self.dt > MAX_TICKS as f64 {
-            return Err(bad(
+            return Err(SettingError::new(
                 "duration",
                 format!(
                     "{} ticks at dt = {}; at most {MAX_TICKS}",
@@ -465,7 +427,7 @@ impl Scenario {
             ));
         }
         if self.record_every == 0 || self.record_every > self.ticks() {
-            return Err(bad(
+            return Err(SettingError::new(
                 "record_every",
                 format!("must be in 1..={} (the run's ticks)", self.ticks()),
             ));
@@ -473,7 +435,7 @@ impl Scenario {
         let columns = super::trajectory::TrajectorySchema::new(layout).len() as u64;
         let rows = self.ticks() / self.record_every + 1;
         if rows.saturating_mul(columns).saturating_mul(24) > MAX_TRAJECTORY_BYTES {
-            return Err(bad(
+            return Err(SettingError::new(
                 "record_every",
                 format!(
                     "{rows} trajectory rows of {columns} columns would exceed {} GiB; record every {} ticks or more",
@@ -482,153 +444,66 @@ impl Scenario {
                 ),
             ));
         }
+        Ok(())
+    }
+
+    /// The arm's end effector and gravity, the start and the targets.
+    fn check_task(&self, n_joints: usize) -> Result<(), SettingError> {
+        let finite_vec = |field: &str, v: &[f64], len: usize| {
+            if v.len() != len {
+                return Err(SettingError::new(
+                    field,
+                    format!("has {} values; the arm has {len} joints", v.len()),
+                ));
+            }
+            if v.iter().all(|x| x.is_finite()) {
+                Ok(())
+            } else {
+                Err(SettingError::new(field, "values must be finite"))
+            }
+        };
         if !self.robot.ee_offset.iter().all(|v| v.is_finite()) {
-            return Err(bad("robot.ee_offset", "values must be finite".into()));
+            return Err(SettingError::new(
+                "robot.ee_offset",
+                "values must be finite",
+            ));
         }
         if !self.robot.gravity.iter().all(|v| v.is_finite()) {
-            return Err(bad("robot.gravity", "values must be finite".into()));
+            return Err(SettingError::new("robot.gravity", "values must be finite"));
         }
-        self.plant
-            .validate()
-            .map_err(|e| bad(&format!("plant.{}", e.field), e.message))?;
         finite_vec("initial.q", &self.initial.q, n_joints)?;
         if let Some(qd) = &self.initial.qd {
             finite_vec("initial.qd", qd, n_joints)?;
         }
         if self.targets.is_empty() {
-            return Err(bad("targets", "at least one target is needed".into()));
+            return Err(SettingError::new(
+                "targets",
+                "at least one target is needed",
+            ));
         }
         if self.targets.len() > MAX_TARGETS {
-            return Err(bad("targets", format!("at most {MAX_TARGETS}")));
+            return Err(SettingError::new(
+                "targets",
+                format!("at most {MAX_TARGETS}"),
+            ));
         }
         let mut last = f64::NEG_INFINITY;
         for (i, t) in self.targets.iter().enumerate() {
             let field = format!("targets[{i}]");
             finite_vec(&format!("{field}.q"), &t.q, n_joints)?;
             if !t.time.is_finite() || t.time < 0.0 {
-                return Err(bad(
-                    &format!("{field}.time"),
-                    "must be finite and >= 0".into(),
+                return Err(SettingError::new(
+                    format!("{field}.time"),
+                    "must be finite and >= 0",
                 ));
             }
             if t.time < last {
-                return Err(bad(
-                    &format!("{field}.time"),
-                    "targets must be in time order".into(),
+                return Err(SettingError::new(
+                    format!("{field}.time"),
+                    "targets must be in time order",
                 ));
             }
             last = t.time;
-        }
-        self.sensors
-            .validate()
-            .map_err(|(f, m)| bad(&format!("sensors.{f}"), m))?;
-        self.camera
-            .validate()
-            .map_err(|(f, m)| bad(&format!("camera.{f}"), m))?;
-        let gp = &self.gp;
-        if gp.model.is_none() {
-            if gp.points < 2 * n_joints + 2 {
-                return Err(bad(
-                    "gp.points",
-                    format!("must be >= {} for {n_joints} joints", 2 * n_joints + 2),
-                ));
-            }
-            if gp.points > 5000 {
-                return Err(bad("gp.points", "more than 5000 is refused".into()));
-            }
-            if !(gp.margin.is_finite() && gp.margin >= 0.0) {
-                return Err(bad("gp.margin", "must be finite and >= 0".into()));
-            }
-            if let Some(b) = &gp.training_box {
-                if b.len() != n_joints {
-                    return Err(bad(
-                        "gp.training_box",
-                        format!("has {} rows; the arm has {n_joints} joints", b.len()),
-                    ));
-                }
-                if !b
-                    .iter()
-                    .all(|[lo, hi]| lo.is_finite() && hi.is_finite() && lo < hi)
-                {
-                    return Err(bad(
-                        "gp.training_box",
-                        "each row must be [lower, upper] with lower < upper".into(),
-                    ));
-                }
-            }
-            if gp.restarts == 0 {
-                return Err(bad("gp.restarts", "must be >= 1".into()));
-            }
-        }
-        self.controller
-            .validate(n_joints, self.dt)
-            .map_err(|(f, m)| bad(&format!("controller.{f}"), m))?;
-        let p = &self.precision;
-        positive("precision.kappa_zeta", p.kappa_zeta)?;
-        if !(p.rho > 0.0 && p.rho < 1.0) {
-            return Err(bad("precision.rho", "must be in (0, 1)".into()));
-        }
-        if p.window == 0 || p.window as u64 > self.ticks().max(1) {
-            return Err(bad(
-                "precision.window",
-                format!("must be in 1..={} (the run's ticks)", self.ticks().max(1)),
-            ));
-        }
-        let b = p.bounds();
-        if !(b.min_ratio.is_finite() && b.min_ratio > 0.0) {
-            return Err(bad("precision.min_ratio", "must be finite and > 0".into()));
-        }
-        if !(b.max_ratio.is_finite() && b.max_ratio >= b.min_ratio) {
-            return Err(bad(
-                "precision.max_ratio",
-                "must be finite and >= min_ratio".into(),
-            ));
-        }
-        if let Some(nominal) = &p.nominal {
-            if nominal.len() != layout.len() {
-                return Err(bad(
-                    "precision.nominal",
-                    format!(
-                        "has {} values; the arm has {} channels ({})",
-                        nominal.len(),
-                        layout.len(),
-                        layout.names().join(", ")
-                    ),
-                ));
-            }
-            if !nominal.iter().all(|w| w.is_finite() && *w > 0.0) {
-                return Err(bad(
-                    "precision.nominal",
-                    "values must be finite and > 0".into(),
-                ));
-            }
-        }
-        self.detector
-            .config()
-            .validate()
-            .map_err(|(f, m)| bad(&format!("detector.{f}"), m))?;
-        self.kalman
-            .validate()
-            .map_err(|(f, m)| bad(&format!("kalman.{f}"), m))?;
-        self.hybrid
-            .validate()
-            .map_err(|(f, m)| bad(&format!("hybrid.{f}"), m))?;
-        if self.hybrid.prior.may_propagate() && self.controller.update != UpdateScheme::GaussNewton
-        {
-            return Err(bad(
-                "hybrid.prior",
-                format!(
-                    "\"{}\" uses the propagated prior, which needs controller.update = \"gauss-newton\"",
-                    self.hybrid.prior.name()
-                ),
-            ));
-        }
-        if self.faults.len() > MAX_FAULTS {
-            return Err(bad("faults", format!("at most {MAX_FAULTS}")));
-        }
-        for (i, f) in self.faults.iter().enumerate() {
-            f.to_fault(layout)
-                .map_err(|(field, m)| bad(&format!("faults[{i}].{field}"), m))?;
         }
         Ok(())
     }

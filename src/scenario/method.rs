@@ -6,6 +6,7 @@
 //! [`build`], and its settings (if any) in the scenario's `[precision]` section.
 
 use std::fmt;
+use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
 
@@ -207,6 +208,8 @@ impl std::str::FromStr for Method {
 /// What building a method needs.
 pub struct MethodContext<'a> {
     pub setup: &'a RunSetup,
+    /// The estimators' arm model for this run (the plant's with the scenario's model error).
+    pub model: Arc<crate::arm::ArmModel>,
     pub layout: &'a ChannelLayout,
     /// Nominal precision per channel.
     pub nominal: &'a [f64],
@@ -225,11 +228,7 @@ pub fn build(method: Method, ctx: &MethodContext<'_>) -> Result<MethodParts, Sce
     let bounds = p.bounds();
     let observation = GpCamera::shared(*ctx.layout, ctx.setup.gp.clone());
     let uaic = || -> Box<dyn Estimator> {
-        Box::new(Uaic::new(
-            sc.controller.uaic(sc.dt),
-            observation.clone(),
-            sc.dt,
-        ))
+        Box::new(Uaic::new(sc.belief.clone(), observation.clone(), sc.dt))
     };
     let gradient = || Gradient::new(nominal, p.kappa_zeta, p.correction, bounds);
     let kc = &sc.kalman;
@@ -237,8 +236,17 @@ pub fn build(method: Method, ctx: &MethodContext<'_>) -> Result<MethodParts, Sce
     let fixed = || -> Box<dyn PrecisionMethod> { Box::new(Fixed::new(nominal)) };
     let acceleration_noise = kc
         .acceleration_noise
-        .unwrap_or(sc.controller.acceleration_bound);
-    let process = || transition_model(kc, &ctx.setup.model, sc.robot.gravity, acceleration_noise);
+        .unwrap_or(sc.belief.acceleration_bound);
+    let model = &ctx.model;
+    let process = || {
+        transition_model(
+            kc.process_model,
+            model.clone(),
+            sc.robot.gravity,
+            &sc.model,
+            acceleration_noise,
+        )
+    };
     match method {
         Method::EkfGate => {
             return Ok((
@@ -256,16 +264,21 @@ pub fn build(method: Method, ctx: &MethodContext<'_>) -> Result<MethodParts, Sce
             return Ok((Box::new(Imm::new(ekf(), kc, process(), nominal)), fixed()));
         }
         Method::Hybrid => {
-            let mut belief = sc.controller.uaic(sc.dt);
+            let mut belief = sc.belief.clone();
             belief.prior = sc.hybrid.prior.initial();
             let uaic = Uaic::new(belief, observation.clone(), sc.dt);
+            let transition = crate::estimation::hybrid::bank_transition(
+                &sc.hybrid,
+                model.clone(),
+                sc.robot.gravity,
+                &sc.model,
+                sc.belief.acceleration_bound,
+            );
             let hybrid = crate::estimation::hybrid::build(
                 uaic,
                 observation.clone(),
                 sc.dt,
-                sc.controller.acceleration_bound,
-                &ctx.setup.model,
-                sc.robot.gravity,
+                transition,
                 &sc.hybrid,
                 nominal,
                 bounds.min_ratio,
@@ -331,5 +344,5 @@ fn detector(ctx: &MethodContext<'_>) -> Result<Detector, ScenarioError> {
             message: "the calibration's sensor groups are not this arm's".into(),
         });
     }
-    Ok(Detector::new(cal, &sc.detector.config(), ctx.layout))
+    Ok(Detector::new(cal, &sc.detector, ctx.layout))
 }

@@ -10,7 +10,7 @@
 //! alarm.
 
 use super::RunSetup;
-use super::runner::{Observer, Outcome, TickRecord};
+use super::runner::{DivergenceReason, Observer, Outcome, StopReason, TickRecord};
 use crate::precision::{self, Detection};
 use crate::sensors::{ChannelLayout, Fault};
 
@@ -377,7 +377,7 @@ impl RunMetrics {
 }
 
 impl Observer for RunMetrics {
-    fn on_tick(&mut self, r: &TickRecord<'_>) {
+    fn iter(&mut self, r: &TickRecord<'_>) {
         let k = r.tick;
         self.ticks_run = k + 1;
         let post = self.first_fault.is_some_and(|f| k >= f);
@@ -426,22 +426,33 @@ impl Observer for RunMetrics {
     }
 }
 
-/// Stops a run whose state or belief leaves any sane range.
-pub struct DivergenceGuard;
+/// Stops a run whose state or belief leaves any sane range: an observer of every tick.
+#[derive(Clone, Debug, Default)]
+pub struct DivergenceGuard {
+    diverged: Option<DivergenceReason>,
+}
 
 impl DivergenceGuard {
     /// Why the run must stop at this tick, if it must.
-    pub fn check(&self, r: &TickRecord<'_>) -> Option<String> {
+    pub fn check(r: &TickRecord<'_>) -> Option<DivergenceReason> {
         let insane = |v: &[f64], limit: f64| v.iter().any(|x| !x.is_finite() || x.abs() > limit);
-        let reason = if !r.estimate.finite {
-            "the belief update became non-finite"
+        if !r.estimate.finite {
+            Some(DivergenceReason::BeliefNonFinite)
         } else if insane(r.q, 1e3) || insane(r.qd, 1e4) {
-            "the arm's state left |q| <= 1e3 rad, |qd| <= 1e4 rad/s"
+            Some(DivergenceReason::StateOutOfRange)
         } else if insane(r.mu, 1e3) || insane(r.mu_p, 1e4) {
-            "the belief left |mu| <= 1e3 rad, |mu'| <= 1e4 rad/s"
+            Some(DivergenceReason::BeliefOutOfRange)
         } else {
-            return None;
-        };
-        Some(reason.to_string())
+            None
+        }
+    }
+}
+
+impl Observer for DivergenceGuard {
+    fn iter(&mut self, r: &TickRecord<'_>) {
+        self.diverged = self.diverged.or(Self::check(r));
+    }
+    fn stop(&self) -> Option<StopReason> {
+        self.diverged.map(StopReason::Diverged)
     }
 }

@@ -6,7 +6,8 @@
 //! simulation's step callback); the precision method learns from the tick (its detector, if it
 //! has one, tests the innovations first); observers see the tick; the plant steps with the
 //! torques. Metrics, divergence checks and trajectory recording are observers
-//! ([`super::metrics`], [`super::trajectory`]), not part of the loop.
+//! ([`super::metrics`], [`super::trajectory`]), not part of the loop; [`Run`] builds a run and
+//! its observers and executes it.
 
 use std::time::Instant;
 
@@ -16,8 +17,52 @@ use super::{Method, RunSetup, ScenarioError};
 use crate::control::Control;
 use crate::estimation::{Estimate, Estimator, EstimatorInput};
 use crate::plant::Plant;
-use crate::precision::{Calibration, Detection, PrecisionInput, PrecisionMethod};
+use crate::precision::Calibration;
+use crate::precision::{Detection, PrecisionInput, PrecisionMethod};
 use crate::sensors::{Camera, ChannelLayout, Readings, SensorSuite};
+
+/// Why a run diverged.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DivergenceReason {
+    /// The estimator refused a non-finite update.
+    BeliefNonFinite,
+    /// The arm's state left |q| <= 1e3 rad, |qd| <= 1e4 rad/s.
+    StateOutOfRange,
+    /// The belief left |mu| <= 1e3 rad, |mu'| <= 1e4 rad/s.
+    BeliefOutOfRange,
+}
+
+impl DivergenceReason {
+    /// What happened, for messages and summary.json.
+    pub fn describe(self) -> &'static str {
+        match self {
+            Self::BeliefNonFinite => "the belief update became non-finite",
+            Self::StateOutOfRange => "the arm's state left |q| <= 1e3 rad, |qd| <= 1e4 rad/s",
+            Self::BeliefOutOfRange => "the belief left |mu| <= 1e3 rad, |mu'| <= 1e4 rad/s",
+        }
+    }
+}
+
+/// Why an observer stopped a run.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum StopReason {
+    /// The state or belief left any sane range (the divergence guard).
+    Diverged(DivergenceReason),
+    /// The user asked (Ctrl-C in Python).
+    Interrupted,
+    /// An observer of the caller's, with its own words.
+    Requested(String),
+}
+
+impl StopReason {
+    pub fn describe(&self) -> String {
+        match self {
+            Self::Diverged(d) => d.describe().to_string(),
+            Self::Interrupted => "interrupted".to_string(),
+            Self::Requested(why) => why.clone(),
+        }
+    }
+}
 
 /// How a run ended. A diverged run is a result, not an error.
 #[derive(Clone, Debug, PartialEq)]
@@ -26,12 +71,12 @@ pub enum Outcome {
     /// The state or belief left any sane range at `tick`.
     Diverged {
         tick: u64,
-        reason: String,
+        reason: DivergenceReason,
     },
     /// An observer asked the run to stop at `tick`.
     Stopped {
         tick: u64,
-        reason: String,
+        reason: StopReason,
     },
 }
 
@@ -41,6 +86,15 @@ impl Outcome {
             Self::Completed => "completed",
             Self::Diverged { .. } => "diverged",
             Self::Stopped { .. } => "stopped",
+        }
+    }
+
+    /// Where and why the run ended early, if it did.
+    pub fn early_end(&self) -> Option<(u64, String)> {
+        match self {
+            Self::Completed => None,
+            Self::Diverged { tick, reason } => Some((*tick, reason.describe().to_string())),
+            Self::Stopped { tick, reason } => Some((*tick, reason.describe())),
         }
     }
 }
@@ -70,12 +124,49 @@ pub struct TickRecord<'a> {
     pub detection: Option<&'a Detection>,
 }
 
-/// Watches a run tick by tick.
+/// What observers are told before the first tick.
+#[derive(Clone, Copy)]
+pub struct RunStart<'a> {
+    pub setup: &'a RunSetup,
+    /// The method's name (or the caller's label for parts of its own).
+    pub label: &'a str,
+    pub seed: u64,
+    pub ticks: u64,
+}
+
+/// Watches a run, as argmin's observers watch a solver: told when it starts, shown every tick
+/// it is set to see ([`ObserverMode`]), told how it ended, and asked after every tick it saw
+/// whether the run should stop. Metrics, the divergence guard, the trajectory writer and the
+/// plots' recorder are observers.
 pub trait Observer {
-    fn on_tick(&mut self, record: &TickRecord<'_>);
-    /// Asked after every tick: a reason to stop the run here, if any.
-    fn stop(&self) -> Option<String> {
+    /// Before the first tick.
+    fn init(&mut self, _start: &RunStart<'_>) {}
+    /// A tick (every tick, or every n-th: [`ObserverMode`]).
+    fn iter(&mut self, record: &TickRecord<'_>);
+    /// After the last tick, with how the run ended.
+    fn finish(&mut self, _outcome: &Outcome) {}
+    /// Asked after every tick it saw: a reason to stop the run here, if any.
+    fn stop(&self) -> Option<StopReason> {
         None
+    }
+}
+
+/// Which ticks an observer sees.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ObserverMode {
+    Always,
+    /// Ticks 0, n, 2n, ...
+    Every(u64),
+    Never,
+}
+
+impl ObserverMode {
+    fn sees(self, tick: u64) -> bool {
+        match self {
+            Self::Always => true,
+            Self::Every(n) => tick.is_multiple_of(n.max(1)),
+            Self::Never => false,
+        }
     }
 }
 
@@ -83,20 +174,43 @@ pub trait Observer {
 pub struct NoObserver;
 
 impl Observer for NoObserver {
-    fn on_tick(&mut self, _: &TickRecord<'_>) {}
+    fn iter(&mut self, _: &TickRecord<'_>) {}
 }
 
-/// Several observers, called in order.
-pub struct Observers<'a>(pub Vec<&'a mut dyn Observer>);
+/// Several observers, each with its mode, called in order; itself an observer (of every tick).
+#[derive(Default)]
+pub struct Observers<'a>(pub Vec<(&'a mut dyn Observer, ObserverMode)>);
+
+impl<'a> Observers<'a> {
+    pub fn new() -> Self {
+        Self(Vec::new())
+    }
+
+    pub fn push(&mut self, observer: &'a mut dyn Observer, mode: ObserverMode) {
+        self.0.push((observer, mode));
+    }
+}
 
 impl Observer for Observers<'_> {
-    fn on_tick(&mut self, record: &TickRecord<'_>) {
-        for o in &mut self.0 {
-            o.on_tick(record);
+    fn init(&mut self, start: &RunStart<'_>) {
+        for (o, _) in &mut self.0 {
+            o.init(start);
         }
     }
-    fn stop(&self) -> Option<String> {
-        self.0.iter().find_map(|o| o.stop())
+    fn iter(&mut self, record: &TickRecord<'_>) {
+        for (o, mode) in &mut self.0 {
+            if mode.sees(record.tick) {
+                o.iter(record);
+            }
+        }
+    }
+    fn finish(&mut self, outcome: &Outcome) {
+        for (o, _) in &mut self.0 {
+            o.finish(outcome);
+        }
+    }
+    fn stop(&self) -> Option<StopReason> {
+        self.0.iter().find_map(|(o, _)| o.stop())
     }
 }
 
@@ -155,6 +269,7 @@ impl Simulation {
             method,
             &super::method::MethodContext {
                 setup,
+                model: setup.estimator_model(seed),
                 layout: &setup.layout,
                 nominal: &nominal,
                 calibration,
@@ -201,7 +316,7 @@ impl Simulation {
             sensors,
             estimator,
             precision,
-            control: Control::new(&sc.controller.control()),
+            control: Control::new(&sc.controller),
             readings: Readings::missing(&layout),
             precisions: nominal.clone(),
             nominal,
@@ -343,61 +458,156 @@ impl Simulation {
     }
 }
 
-/// Runs `method` with sensor-noise seed `seed` over the scenario. Methods with a detector need
-/// `calibration`.
-pub fn run(
-    setup: &RunSetup,
-    method: Method,
-    seed: u64,
-    calibration: Option<&Calibration>,
-    observer: &mut dyn Observer,
-) -> Result<RunResult, ScenarioError> {
-    let sim = Simulation::new(setup, method, seed, calibration)?;
-    drive(setup, sim, method.name(), seed, observer)
+/// What a run runs: a method by name, or an estimator and precision method of the caller's.
+enum What {
+    Method(Method),
+    Parts(String, MethodParts),
 }
 
-/// Runs an estimator and a precision method of the caller's over the scenario, through the
-/// same loop as [`run`]; `label` names them in the result.
-pub fn run_parts(
-    setup: &RunSetup,
-    label: &str,
+/// One run of a scenario, built and then executed: the method (or parts of the caller's), the
+/// seed (default: the scenario's), the detector's calibration for methods that need one, and
+/// observers with their modes. Metrics and the divergence guard always watch; tables,
+/// campaigns, calibration, the run folders and the Python package compose this.
+///
+/// ```no_run
+/// # use aift::scenario::{LoadedScenario, Method, RunSetup, runner::Run};
+/// let setup = RunSetup::prepare(LoadedScenario::embedded_default(&[]).unwrap()).unwrap();
+/// let result = Run::new(&setup, Method::NoFt).seed(3).execute().unwrap();
+/// println!("{}: {}", result.method, result.outcome.name());
+/// ```
+pub struct Run<'a> {
+    setup: &'a RunSetup,
+    what: What,
     seed: u64,
-    parts: MethodParts,
-    observer: &mut dyn Observer,
-) -> Result<RunResult, ScenarioError> {
-    let sim = Simulation::from_parts(setup, seed, parts)?;
-    drive(setup, sim, label, seed, observer)
+    calibration: Option<&'a Calibration>,
+    observers: Observers<'a>,
 }
 
-fn drive(
-    setup: &RunSetup,
-    mut sim: Simulation,
-    label: &str,
-    seed: u64,
-    observer: &mut dyn Observer,
-) -> Result<RunResult, ScenarioError> {
-    let mut metrics = RunMetrics::new(setup, sim.nominal());
-    let guard = DivergenceGuard;
-    let mut outcome = Outcome::Completed;
-    let start = Instant::now();
-    for k in 0..sim.ticks() {
-        sim.decide(None);
-        let record = sim.record();
-        observer.on_tick(&record);
-        metrics.on_tick(&record);
-        if let Some(reason) = guard.check(&record) {
-            outcome = Outcome::Diverged { tick: k, reason };
-            break;
+impl<'a> Run<'a> {
+    /// `method` on the scenario with its own seed.
+    pub fn new(setup: &'a RunSetup, method: Method) -> Self {
+        Self {
+            seed: setup.scenario().seed,
+            setup,
+            what: What::Method(method),
+            calibration: None,
+            observers: Observers::new(),
         }
-        if let Some(reason) = observer.stop() {
-            outcome = Outcome::Stopped { tick: k, reason };
-            break;
-        }
-        sim.actuate(None);
     }
-    let wall_seconds = start.elapsed().as_secs_f64();
-    let (mut q, mut qd) = (vec![0.0; setup.layout.n_joints()], vec![0.0; 0]);
-    qd.resize(q.len(), 0.0);
-    sim.arm().read_state(&mut q, &mut qd);
-    Ok(metrics.finish(label, seed, outcome, &q, sim.detection(), wall_seconds))
+
+    /// An estimator and a precision method of the caller's, through the same loop; `label`
+    /// names them in the result.
+    pub fn with_parts(setup: &'a RunSetup, label: &str, parts: MethodParts) -> Self {
+        Self {
+            seed: setup.scenario().seed,
+            setup,
+            what: What::Parts(label.to_string(), parts),
+            calibration: None,
+            observers: Observers::new(),
+        }
+    }
+
+    /// The sensor-noise (and model-error) seed.
+    pub fn seed(mut self, seed: u64) -> Self {
+        self.seed = seed;
+        self
+    }
+
+    /// The detector's calibration (methods with a detector need one).
+    pub fn calibration(mut self, calibration: Option<&'a Calibration>) -> Self {
+        self.calibration = calibration;
+        self
+    }
+
+    /// One more observer, seeing the ticks `mode` says.
+    pub fn observe(mut self, observer: &'a mut dyn Observer, mode: ObserverMode) -> Self {
+        self.observers.push(observer, mode);
+        self
+    }
+
+    /// The label results carry.
+    pub fn label(&self) -> &str {
+        match &self.what {
+            What::Method(m) => m.name(),
+            What::Parts(label, _) => label,
+        }
+    }
+
+    /// The method run (None for parts of the caller's).
+    pub fn method(&self) -> Option<Method> {
+        match &self.what {
+            What::Method(m) => Some(*m),
+            What::Parts(..) => None,
+        }
+    }
+
+    pub fn setup(&self) -> &'a RunSetup {
+        self.setup
+    }
+
+    /// The detector calibration given to the run.
+    pub fn calibration_given(&self) -> Option<&'a Calibration> {
+        self.calibration
+    }
+
+    /// The simulation at tick 0, to step by hand ([`Simulation::decide`], [`Simulation::actuate`]);
+    /// the observers are not used.
+    pub fn simulation(self) -> Result<Simulation, ScenarioError> {
+        match self.what {
+            What::Method(m) => Simulation::new(self.setup, m, self.seed, self.calibration),
+            What::Parts(_, parts) => Simulation::from_parts(self.setup, self.seed, parts),
+        }
+    }
+
+    /// Runs the scenario to its end (or until an observer stops it) and measures it.
+    pub fn execute(self) -> Result<RunResult, ScenarioError> {
+        self.execute_with(&mut Observers::new())
+    }
+
+    /// As [`Self::execute`], with more observers that need not outlive the run's builder
+    /// (a caller's locals: a run folder's writers).
+    pub fn execute_with(self, extra: &mut Observers<'_>) -> Result<RunResult, ScenarioError> {
+        let setup = self.setup;
+        let seed = self.seed;
+        let label = self.label().to_string();
+        let mut observers = self.observers;
+        let mut sim = match self.what {
+            What::Method(m) => Simulation::new(setup, m, seed, self.calibration)?,
+            What::Parts(_, parts) => Simulation::from_parts(setup, seed, parts)?,
+        };
+        let mut metrics = RunMetrics::new(setup, sim.nominal());
+        let mut guard = DivergenceGuard::default();
+        let start = RunStart {
+            setup,
+            label: &label,
+            seed,
+            ticks: sim.ticks(),
+        };
+        observers.init(&start);
+        extra.init(&start);
+        let mut outcome = Outcome::Completed;
+        let clock = Instant::now();
+        for k in 0..sim.ticks() {
+            sim.decide(None);
+            let record = sim.record();
+            observers.iter(&record);
+            extra.iter(&record);
+            metrics.iter(&record);
+            guard.iter(&record);
+            if let Some(StopReason::Diverged(reason)) = guard.stop() {
+                outcome = Outcome::Diverged { tick: k, reason };
+                break;
+            }
+            if let Some(reason) = observers.stop().or_else(|| extra.stop()) {
+                outcome = Outcome::Stopped { tick: k, reason };
+                break;
+            }
+            sim.actuate(None);
+        }
+        let wall_seconds = clock.elapsed().as_secs_f64();
+        observers.finish(&outcome);
+        extra.finish(&outcome);
+        let (q, _) = sim.arm().state();
+        Ok(metrics.finish(&label, seed, outcome, &q, sim.detection(), wall_seconds))
+    }
 }

@@ -3,7 +3,8 @@
 
 use rayon::prelude::*;
 
-use super::{Method, NoObserver, RunResult, RunSetup, ScenarioError, run};
+use super::runner::Run;
+use super::{Method, RunResult, RunSetup, ScenarioError};
 use crate::precision::Calibration;
 
 /// One method's row of the table.
@@ -63,7 +64,10 @@ pub fn run_table(
     let results: Vec<Result<RunResult, ScenarioError>> = jobs
         .par_iter()
         .map(|&(method, seed)| {
-            let r = run(setup, method, seed, calibration, &mut NoObserver);
+            let r = Run::new(setup, method)
+                .seed(seed)
+                .calibration(calibration)
+                .execute();
             progress();
             r
         })

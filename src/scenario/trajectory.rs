@@ -119,7 +119,6 @@ impl TrajectorySchema {
 pub struct TrajectoryWriter<W: Write> {
     schema: TrajectorySchema,
     out: std::io::BufWriter<W>,
-    every: u64,
     row: Vec<f64>,
     line: String,
     error: Option<std::io::Error>,
@@ -127,10 +126,10 @@ pub struct TrajectoryWriter<W: Write> {
 }
 
 impl<W: Write> TrajectoryWriter<W> {
-    pub fn new(schema: TrajectorySchema, out: W, every: u64) -> Self {
+    /// A writer of every tick it is shown (register it with `ObserverMode::Every(record_every)`).
+    pub fn new(schema: TrajectorySchema, out: W) -> Self {
         let mut w = Self {
             out: std::io::BufWriter::with_capacity(1 << 16, out),
-            every: every.max(1),
             row: Vec::with_capacity(schema.len()),
             line: String::with_capacity(32 * schema.len()),
             error: None,
@@ -159,8 +158,8 @@ impl<W: Write> TrajectoryWriter<W> {
 }
 
 impl<W: Write> Observer for TrajectoryWriter<W> {
-    fn on_tick(&mut self, r: &TickRecord<'_>) {
-        if self.error.is_some() || !r.tick.is_multiple_of(self.every) {
+    fn iter(&mut self, r: &TickRecord<'_>) {
+        if self.error.is_some() {
             return;
         }
         self.schema.row(r, &mut self.row);
@@ -387,7 +386,7 @@ impl TrajectoryRecorder {
 }
 
 impl Observer for TrajectoryRecorder {
-    fn on_tick(&mut self, r: &TickRecord<'_>) {
+    fn iter(&mut self, r: &TickRecord<'_>) {
         if !r.tick.is_multiple_of(self.every) {
             return;
         }
@@ -407,13 +406,13 @@ pub const MAX_IN_MEMORY_VALUES: u64 = 1 << 27;
 #[derive(Clone, Debug)]
 pub struct TrajectoryColumns {
     schema: TrajectorySchema,
-    every: u64,
     columns: Vec<Vec<f64>>,
     row: Vec<f64>,
 }
 
 impl TrajectoryColumns {
-    /// Room for `ticks` ticks recorded every `every`-th; an error message when that would pass
+    /// Room for `ticks` ticks recorded every `every`-th (register it with
+    /// `ObserverMode::Every(every)`); an error message when that would pass
     /// [`MAX_IN_MEMORY_VALUES`].
     pub fn new(layout: &ChannelLayout, ticks: u64, every: u64) -> Result<Self, String> {
         let schema = TrajectorySchema::new(layout);
@@ -434,7 +433,6 @@ impl TrajectoryColumns {
         Ok(Self {
             row: Vec::with_capacity(schema.len()),
             schema,
-            every,
             columns,
         })
     }
@@ -454,10 +452,7 @@ impl TrajectoryColumns {
 }
 
 impl Observer for TrajectoryColumns {
-    fn on_tick(&mut self, r: &TickRecord<'_>) {
-        if !r.tick.is_multiple_of(self.every) {
-            return;
-        }
+    fn iter(&mut self, r: &TickRecord<'_>) {
         self.schema.row(r, &mut self.row);
         for (column, v) in self.columns.iter_mut().zip(&self.row) {
             column.push(*v);

@@ -93,12 +93,12 @@ impl Default for CameraConfig {
 
 impl CameraConfig {
     /// Checks the geometry; returns the offending field and why.
-    pub fn validate(&self) -> Result<(), (&'static str, String)> {
+    pub fn validate(&self) -> Result<(), crate::SettingError> {
         let finite = |name: &'static str, v: &[f64]| {
             if v.iter().all(|x| x.is_finite()) {
                 Ok(())
             } else {
-                Err((name, "must be finite".to_string()))
+                Err(crate::SettingError::new(name, "must be finite".to_string()))
             }
         };
         finite("sigma", &[self.sigma])?;
@@ -110,24 +110,36 @@ impl CameraConfig {
         finite("up", &self.up)?;
         finite("optical_centre", &self.optical_centre)?;
         if self.sigma < 0.0 || self.sigma > 1e3 {
-            return Err(("sigma", "must be in [0, 1e3] m".into()));
+            return Err(crate::SettingError::new("sigma", "must be in [0, 1e3] m"));
         }
         for (name, k) in [("k1", self.k1), ("k2", self.k2), ("k3", self.k3)] {
             if k.abs() > 1e3 {
-                return Err((name, "must be at most 1e3 in size".into()));
+                return Err(crate::SettingError::new(
+                    name,
+                    "must be at most 1e3 in size",
+                ));
             }
         }
         let forward = Vector3::from(self.look_at) - Vector3::from(self.position);
         if forward.norm() < 1e-9 {
-            return Err(("look_at", "must differ from position".into()));
+            return Err(crate::SettingError::new(
+                "look_at",
+                "must differ from position",
+            ));
         }
         if forward.cross(&Vector3::from(self.up)).norm() < 1e-9 * forward.norm() {
-            return Err(("up", "must not be parallel to the viewing direction".into()));
+            return Err(crate::SettingError::new(
+                "up",
+                "must not be parallel to the viewing direction",
+            ));
         }
         if let Some(d) = self.reference_depth
             && !(d.is_finite() && d > 0.0)
         {
-            return Err(("reference_depth", "must be finite and > 0".into()));
+            return Err(crate::SettingError::new(
+                "reference_depth",
+                "must be finite and > 0",
+            ));
         }
         Ok(())
     }
@@ -334,11 +346,11 @@ mod tests {
             up: [0.0, 1.0, 0.0],
             ..CameraConfig::default()
         };
-        assert_eq!(bad.validate().unwrap_err().0, "up");
+        assert_eq!(bad.validate().unwrap_err().field, "up");
         let bad = CameraConfig {
             sigma: f64::NAN,
             ..CameraConfig::default()
         };
-        assert_eq!(bad.validate().unwrap_err().0, "sigma");
+        assert_eq!(bad.validate().unwrap_err().field, "sigma");
     }
 }

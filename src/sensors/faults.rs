@@ -57,12 +57,15 @@ impl FaultKind {
     }
 
     /// Checks the parameters; returns the offending one and why.
-    pub fn validate(&self) -> Result<(), (&'static str, String)> {
+    pub fn validate(&self) -> Result<(), crate::SettingError> {
         let finite = |name: &'static str, v: f64| {
             if v.is_finite() && v.abs() <= 1e6 {
                 Ok(())
             } else {
-                Err((name, format!("{v} must be finite and at most 1e6 in size")))
+                Err(crate::SettingError::new(
+                    name,
+                    format!("{v} must be finite and at most 1e6 in size"),
+                ))
             }
         };
         match *self {
@@ -73,7 +76,7 @@ impl FaultKind {
             Self::Noise { factor } => {
                 finite("factor", factor)?;
                 if factor < 0.0 {
-                    return Err(("factor", "must be >= 0".into()));
+                    return Err(crate::SettingError::new("factor", "must be >= 0"));
                 }
                 Ok(())
             }
@@ -83,7 +86,7 @@ impl FaultKind {
                 magnitude,
             } => {
                 if !(0.0..=1.0).contains(&probability) {
-                    return Err(("probability", "must be in [0, 1]".into()));
+                    return Err(crate::SettingError::new("probability", "must be in [0, 1]"));
                 }
                 finite("magnitude", magnitude)
             }
@@ -147,13 +150,13 @@ pub struct Fault {
 
 impl FaultSpec {
     /// Checks the spec against a layout; on error returns the offending field and why.
-    pub fn to_fault(&self, layout: &ChannelLayout) -> Result<Fault, (&'static str, String)> {
+    pub fn to_fault(&self, layout: &ChannelLayout) -> Result<Fault, crate::SettingError> {
         let selectors = self.channel.selectors();
         if selectors.is_empty() {
-            return Err(("channel", "names no channel".into()));
+            return Err(crate::SettingError::new("channel", "names no channel"));
         }
         if selectors.len() > layout.len() {
-            return Err((
+            return Err(crate::SettingError::new(
                 "channel",
                 format!(
                     "lists {} selectors; the arm has {} channels",
@@ -165,7 +168,7 @@ impl FaultSpec {
         let mut channels = Vec::new();
         for s in selectors {
             let hit = layout.select(s).ok_or_else(|| {
-                (
+                crate::SettingError::new(
                     "channel",
                     format!(
                         "{s:?} is not a channel of this arm ({})",
@@ -178,12 +181,15 @@ impl FaultSpec {
         channels.sort_unstable();
         channels.dedup();
         if !self.start.is_finite() || self.start < 0.0 {
-            return Err(("start", "must be finite and >= 0".into()));
+            return Err(crate::SettingError::new("start", "must be finite and >= 0"));
         }
         if let Some(end) = self.end
             && (!end.is_finite() || end <= self.start)
         {
-            return Err(("end", "must be finite and after start".into()));
+            return Err(crate::SettingError::new(
+                "end",
+                "must be finite and after start",
+            ));
         }
         self.kind.validate()?;
         Ok(Fault {

@@ -300,16 +300,16 @@ impl Default for SensorConfig {
 
 impl SensorConfig {
     /// Checks the values; on error returns the offending field and why.
-    pub fn validate(&self) -> Result<(), (&'static str, String)> {
+    pub fn validate(&self) -> Result<(), crate::SettingError> {
         for (name, v) in [
             ("encoder_sigma", self.encoder_sigma),
             ("tachometer_sigma", self.tachometer_sigma),
         ] {
             if !(v.is_finite() && v >= 0.0) {
-                return Err((name, "must be finite and >= 0".into()));
+                return Err(crate::SettingError::new(name, "must be finite and >= 0"));
             }
             if v > 1e3 {
-                return Err((name, "must be <= 1e3".into()));
+                return Err(crate::SettingError::new(name, "must be <= 1e3"));
             }
         }
         Ok(())

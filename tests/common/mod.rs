@@ -166,7 +166,12 @@ pub fn run_recorded(
     aift::scenario::TrajectoryRecorder,
 ) {
     let mut rec = aift::scenario::TrajectoryRecorder::new(&setup.layout);
-    let result = aift::scenario::run(setup, method, seed, calibration, &mut rec).expect("run");
+    let result = aift::scenario::Run::new(setup, method)
+        .seed(seed)
+        .calibration(calibration)
+        .observe(&mut rec, aift::scenario::ObserverMode::Always)
+        .execute()
+        .expect("run");
     (result, rec)
 }
 
@@ -222,7 +227,7 @@ pub fn tiny_campaign(name: &str, extra: &str) -> String {
 name = "{name}"
 seeds = 1
 methods = ["no-ft", "oracle"]
-set = ["plant.engine=\"articulated\"", "duration=9.0"]
+defaults = {{ duration = 9.0, plant = {{ engine = "articulated" }} }}
 channels = ["enc*"]
 
 [[arms]]

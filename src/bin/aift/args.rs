@@ -124,7 +124,7 @@ pub struct InitArgs {
 pub struct ScenarioArgs {
     /// Scenario file (TOML); default: the embedded paper_encoder_freeze scenario.
     pub scenario: Option<PathBuf>,
-    /// Override a scenario value, e.g. `--set controller.step=0.5` (repeatable).
+    /// Override a scenario value, e.g. `--set belief.step=0.5` (repeatable).
     #[arg(long = "set", value_name = "KEY=VALUE", allow_hyphen_values = true)]
     pub set: Vec<String>,
 }

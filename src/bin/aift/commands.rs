@@ -162,14 +162,15 @@ fn campaign(args: CampaignArgs) -> Result<(), Failure> {
     if !args.methods.is_empty() {
         config.methods = Some(parse_methods(&args.methods)?);
     }
-    config.set.extend(args.set.iter().cloned());
     let dir = args
         .out
         .clone()
         .unwrap_or_else(|| PathBuf::from("campaigns").join(&config.name));
     let staged = stage(&dir, OutputKind::Folder, args.force)?;
     eprintln!("preparing {} (arms, camera models)...", path.display());
-    let campaign = Campaign::from_config(config, &path, &[]).map_err(bad_input)?;
+    // --set applies to every arm's template last; the fingerprint covers each resolved
+    // scenario, so shards with other overrides do not merge.
+    let campaign = Campaign::from_config(config, &path, &args.set).map_err(bad_input)?;
     let jobs = campaign.jobs().len() + campaign.reaching_tasks().len();
     eprintln!(
         "{} cells x {} methods x {} seeds = {} runs{}{}",
@@ -441,8 +442,11 @@ fn run(args: RunArgs) -> Result<(), Failure> {
     // when every file is written.
     let staged = stage(&dir, OutputKind::Folder, args.force)?;
     let calibration = calibration_for(&setup, &[method], args.calib.as_ref())?;
-    let result = run_files::run_into(staged, &setup, method, seed, calibration.as_deref())
-        .map_err(report_failure)?;
+    let run = scenario::Run::new(&setup, method)
+        .seed(seed)
+        .calibration(calibration.as_deref());
+    let result = run_files::run_staged(&staged, run).map_err(report_failure)?;
+    staged.commit().map_err(file_failure)?;
     let fmt_opt = |v: Option<f64>| v.map_or("n/a".to_string(), |x| format!("{x:.3e}"));
     say!(
         args.json,
@@ -453,11 +457,12 @@ fn run(args: RunArgs) -> Result<(), Failure> {
         describe_gp(&setup)
     );
     say!(args.json, "outcome: {}", result.outcome.name());
-    if let scenario::Outcome::Diverged { tick, reason } = &result.outcome {
+    if let Some((tick, reason)) = result.outcome.early_end() {
         say!(
             args.json,
-            "  diverged at t = {:.3} s: {reason}",
-            *tick as f64 * setup.scenario().dt
+            "  {} at t = {:.3} s: {reason}",
+            result.outcome.name(),
+            tick as f64 * setup.scenario().dt
         );
     }
     say!(

@@ -1,0 +1,123 @@
+//! The models estimators are composed from, against independent references: the arm transition's
+//! acceleration against the closed-form two-link dynamics and against finite differences of
+//! simulated motion on the 7-DOF arm; a Kalman prediction through it against the exact
+//! constant-acceleration step.
+
+mod common;
+
+use std::sync::Arc;
+
+use aift::estimation::kalman::Ekf;
+use aift::estimation::models::{
+    ArmTransition, ConstantVelocity, ObservationModel, TransitionModel,
+};
+use aift::plant::{Engine, Integrator};
+use aift::sensors::{CameraModel, ChannelLayout};
+use common::PaperArm;
+
+/// The paper arm's transition acceleration is the closed form M^-1 (tau - C qd - D qd - G).
+#[test]
+fn the_arm_transition_is_the_closed_form_two_link_dynamics() {
+    let oracle = PaperArm::default();
+    let model = common::model("urdf/planar_2dof.urdf");
+    // The URDF's joints turn about -y; the closed form's angles are the same (docs/method.md).
+    let mut t = ArmTransition::new(model, [0.0, 0.0, -9.81], 2.0, 0.1, 200.0);
+    for (q, qd, tau) in [
+        ([0.3, 0.2], [0.0, 0.0], [30.0, -8.0]),
+        ([-1.1, 0.9], [1.5, -2.0], [-5.0, 12.0]),
+    ] {
+        let x = [q[0], q[1], qd[0], qd[1]];
+        let acc = t.evaluate(&x, &tau).acceleration.unwrap().to_vec();
+        let want = oracle.acceleration(q, qd, tau);
+        for i in 0..2 {
+            assert!(
+                (acc[i] - want[i]).abs() < 1e-9 * (1.0 + want[i].abs()),
+                "{acc:?} against {want:?}"
+            );
+        }
+    }
+}
+
+/// On the Panda, the transition's acceleration equals the finite difference of the velocity of
+/// the articulated plant stepped by RK4 over a microsecond from the same state under the same
+/// torques (no damping is implicit in RK4, no limit or friction acts there).
+#[test]
+fn the_arm_transition_matches_finite_differences_of_simulated_motion() {
+    let model = common::model("urdf/panda_7dof.urdf");
+    let mut t = ArmTransition::new(model, [0.0, 0.0, -9.81], 2.0, 0.1, 200.0);
+    let mut plant = common::plant_of(
+        "urdf/panda_7dof.urdf",
+        Engine::Articulated,
+        Integrator::Rk4,
+        1,
+    );
+    let q = [0.3, -0.5, 0.2, -1.9, 0.4, 1.6, -0.7];
+    let qd = [0.8, -0.4, 1.1, 0.5, -1.3, 0.9, 2.0];
+    let tau = [3.0, -20.0, 1.0, 8.0, 0.5, -0.4, 0.1];
+    let h = 1e-6;
+    plant.set_state(&q, &qd);
+    plant.set_torques(&tau);
+    plant.step(h);
+    let (_, qd_h) = plant.state();
+    let x: Vec<f64> = q.iter().chain(&qd).copied().collect();
+    let acc = t.evaluate(&x, &tau).acceleration.unwrap().to_vec();
+    for i in 0..7 {
+        let fd = (qd_h[i] - qd[i]) / h;
+        assert!(
+            (acc[i] - fd).abs() < 1e-4 * (1.0 + fd.abs()),
+            "joint {i}: {} against {fd}",
+            acc[i]
+        );
+    }
+}
+
+/// An observation model of the test's own: a camera that sees nothing move.
+struct NoCamera(ChannelLayout);
+
+impl ObservationModel for NoCamera {
+    fn layout(&self) -> &ChannelLayout {
+        &self.0
+    }
+    fn camera(&self, _: &[f64], g: &mut [f64], jac: &mut [f64]) {
+        g.fill(0.0);
+        jac.fill(0.0);
+    }
+}
+
+/// One Kalman prediction through a transition is the exact step of constant acceleration: mean
+/// x + dt v + dt^2 a / 2, v + dt a; covariance F P F' + Q with the transition's noise (scaled).
+#[test]
+fn the_filter_step_predicts_with_the_transition() {
+    let layout = ChannelLayout::new(2, CameraModel::Pinhole);
+    let observation: Arc<dyn ObservationModel> = Arc::new(NoCamera(layout));
+    let dt = 1e-3;
+    let model = common::model("urdf/planar_2dof.urdf");
+    let mut t = ArmTransition::new(model, [0.0, 0.0, -9.81], 2.0, 0.1, 200.0);
+    let x = [0.3, -0.7, 0.5, -1.0];
+    let u = [40.0, -3.0];
+    for (model, scale) in [
+        (&mut t as &mut dyn TransitionModel, 1.0),
+        (&mut ConstantVelocity::new(2, 7.0), 3.0),
+    ] {
+        let tr = model.evaluate(&x, &u);
+        let acc = tr.acceleration.map_or(vec![0.0, 0.0], <[f64]>::to_vec);
+        let noise = tr.noise.to_vec();
+        let mut ekf = Ekf::new(observation.clone(), dt);
+        ekf.x.copy_from_slice(&x);
+        ekf.p.fill_with_identity();
+        ekf.predict(&tr, scale);
+        for i in 0..2 {
+            let q = x[i] + dt * x[2 + i] + 0.5 * dt * dt * acc[i];
+            let v = x[2 + i] + dt * acc[i];
+            assert!((ekf.x[i] - q).abs() < 1e-15 && (ekf.x[2 + i] - v).abs() < 1e-15);
+            let s2 = (scale * noise[i]).powi(2);
+            // F P F' with P = I: [[1 + dt^2, dt], [dt, 1]] per joint, plus Q.
+            let pqq = 1.0 + dt * dt + s2 * dt.powi(4) / 4.0;
+            let pqv = dt + s2 * dt.powi(3) / 2.0;
+            let pvv = 1.0 + s2 * dt * dt;
+            assert!((ekf.p[(i, i)] - pqq).abs() < 1e-12);
+            assert!((ekf.p[(i, 2 + i)] - pqv).abs() < 1e-12);
+            assert!((ekf.p[(2 + i, 2 + i)] - pvv).abs() < 1e-12);
+        }
+    }
+}
