@@ -125,6 +125,17 @@ fn init_writes_a_scenario_that_reaches_its_targets_under_every_method() {
             text.contains("# PID from the largest row sum of |M|"),
             "{text}"
         );
+        // The fault example that closes the file, uncommented, is a valid fault for this arm.
+        let example: String = text
+            .lines()
+            .skip_while(|l| *l != "# [[faults]]")
+            .map(|l| format!("{}\n", l.trim_start_matches("# ")))
+            .collect();
+        assert!(example.starts_with("[[faults]]\n"), "{text}");
+        let faulted = tmp.path().join(format!("{urdf}_fault.toml"));
+        std::fs::write(&faulted, format!("{text}{example}")).unwrap();
+        let loaded = LoadedScenario::from_file(&faulted, &[]).unwrap();
+        assert_eq!(loaded.scenario.faults.len(), 1, "{urdf}");
         let setup = RunSetup::prepare(LoadedScenario::from_file(&out, &[]).unwrap()).unwrap();
         for (method, error, outcome) in every_method(&setup) {
             eprintln!("init {urdf} {method}: final error {error:.2e} ({outcome})");

@@ -115,6 +115,8 @@ pub enum ArmError {
     MasslessBody { path: PathBuf, link: String },
     #[error("{path}: no movable joint (revolute, continuous or prismatic): nothing to control")]
     NoMovableJoint { path: PathBuf },
+    #[error("gen-arm: {message}")]
+    Generate { message: String },
     #[error("{path}: end-effector link '{link}' does not exist (links: {available})")]
     UnknownEndEffector {
         path: PathBuf,
@@ -127,6 +129,7 @@ impl ArmError {
     /// The file the error is about.
     pub fn path(&self) -> &std::path::Path {
         match self {
+            Self::Generate { .. } => std::path::Path::new("<generated>"),
             Self::File(e) => e.path(),
             Self::Unreadable { path, .. }
             | Self::Empty { path }

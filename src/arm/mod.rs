@@ -7,6 +7,7 @@
 
 pub mod dynamics;
 mod error;
+pub mod generate;
 pub mod kinematics;
 mod model;
 pub mod model_error;
@@ -14,6 +15,7 @@ pub mod urdf;
 
 pub use dynamics::Dynamics;
 pub use error::ArmError;
+pub use generate::{GenerateOptions, generate_arm};
 pub use kinematics::{EndEffector, Kinematics};
 pub use model::{
     ArmModel, BodySpec, ColliderSpec, JointKind, JointSpec, LinkFrame, ShapeSpec, to_parry_pose,

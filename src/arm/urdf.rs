@@ -339,8 +339,51 @@ pub(crate) fn build_model(
 ) -> Result<ArmModel, ArmError> {
     let p = || path.to_path_buf();
     let mut warnings = Vec::new();
+    let link_index = index_names(robot, path)?;
+    let tree = topology(robot, &link_index, path)?;
+    let walk = walk_tree(robot, &link_index, &tree, path, &mut warnings)?;
+    let (link_body, parent_joint) = (&walk.link_body, &tree.parent_joint);
+    // Links not reached from the root: their parent chain loops.
+    if let Some(unreached) = (0..robot.links.len()).find(|&l| link_body[l].is_none()) {
+        let joint = parent_joint[unreached].map_or_else(
+            || robot.links[unreached].name.clone(),
+            |j| robot.joints[j].name.clone(),
+        );
+        return Err(ArmError::Cycle { path: p(), joint });
+    }
+    if walk.joints.is_empty() {
+        return Err(ArmError::NoMovableJoint { path: p() });
+    }
+    for joint in &robot.joints {
+        if joint.joint_type != urdf_rs::JointType::Fixed && joint.mimic.is_some() {
+            warnings.push(format!(
+                "joint '{}': <mimic> ignored; the joint is simulated as independent",
+                joint.name
+            ));
+        }
+    }
+    let (mut links, bodies, colliders) =
+        mass_properties(robot, scanned, &walk, path, options, &mut warnings)?;
+    // Keep links in file order for listing.
+    links.sort_by_key(|l| link_index[l.name.as_str()]);
 
-    // Names.
+    Ok(ArmModel {
+        name: robot.name.clone(),
+        source: path.to_path_buf(),
+        bodies,
+        joints: walk.joints,
+        links,
+        colliders,
+        warnings,
+    })
+}
+
+/// Every link and joint named once; the links' indices by name.
+fn index_names<'a>(
+    robot: &'a urdf_rs::Robot,
+    path: &Path,
+) -> Result<HashMap<&'a str, usize>, ArmError> {
+    let p = || path.to_path_buf();
     let mut link_index: HashMap<&str, usize> = HashMap::new();
     for (i, link) in robot.links.iter().enumerate() {
         if link_index.insert(link.name.as_str(), i).is_some() {
@@ -368,8 +411,23 @@ pub(crate) fn build_model(
             roots: "no <link> at all".into(),
         });
     }
+    Ok(link_index)
+}
 
-    // Topology: parent joint of every link.
+/// The joint tree: each link's parent joint, each link's child joints, the single root.
+struct Topology {
+    parent_joint: Vec<Option<usize>>,
+    children: Vec<Vec<usize>>,
+    root: usize,
+}
+
+/// The tree the joints make: one parent per link, a single root, no lone link.
+fn topology(
+    robot: &urdf_rs::Robot,
+    link_index: &HashMap<&str, usize>,
+    path: &Path,
+) -> Result<Topology, ArmError> {
+    let p = || path.to_path_buf();
     let mut parent_joint: Vec<Option<usize>> = vec![None; robot.links.len()];
     let mut children: Vec<Vec<usize>> = vec![Vec::new(); robot.links.len()];
     for (j, joint) in robot.joints.iter().enumerate() {
@@ -441,8 +499,34 @@ pub(crate) fn build_model(
             });
         }
     };
+    Ok(Topology {
+        parent_joint,
+        children,
+        root,
+    })
+}
 
-    // Breadth-first from the root: bodies, link frames, movable joints.
+/// What the breadth-first walk builds: each link's body and pose in it, each body's links and
+/// top link, the movable joints.
+struct Walk {
+    link_body: Vec<Option<(usize, Isometry3<f64>)>>,
+    body_links: Vec<Vec<usize>>,
+    body_top: Vec<usize>,
+    joints: Vec<JointSpec>,
+}
+
+/// Breadth-first from the root: bodies (fixed joints merge a link into its parent's body), link
+/// frames, movable joints.
+fn walk_tree(
+    robot: &urdf_rs::Robot,
+    link_index: &HashMap<&str, usize>,
+    tree: &Topology,
+    path: &Path,
+    warnings: &mut Vec<String>,
+) -> Result<Walk, ArmError> {
+    let p = || path.to_path_buf();
+    let Topology { children, root, .. } = tree;
+    let root = *root;
     let mut link_body: Vec<Option<(usize, Isometry3<f64>)>> = vec![None; robot.links.len()];
     link_body[root] = Some((0, Isometry3::identity()));
     let mut body_links: Vec<Vec<usize>> = vec![vec![root]];
@@ -474,187 +558,132 @@ pub(crate) fn build_model(
                     body_links[body].push(child);
                 }
                 Some(kind) => {
-                    let axis = Vector3::from(joint.axis.xyz.0);
-                    let axis = Unit::try_new(axis, 1e-12).ok_or_else(|| ArmError::ZeroAxis {
-                        path: p(),
-                        joint: joint.name.clone(),
-                    })?;
-                    let lim = &joint.limit;
-                    let mut kind = kind;
-                    let limits = match kind {
-                        JointKind::Continuous => None,
-                        _ if lim.lower > lim.upper => {
-                            return Err(ArmError::BadLimit {
-                                path: p(),
-                                joint: joint.name.clone(),
-                                lower: lim.lower,
-                                upper: lim.upper,
-                            });
-                        }
-                        _ if lim.lower == lim.upper
-                            || (!lim.lower.is_finite() && !lim.upper.is_finite()) =>
-                        {
-                            warnings.push(format!(
-                                "joint '{}': no position limits (lower = upper); simulated without limits",
-                                joint.name
-                            ));
-                            if kind == JointKind::Revolute {
-                                kind = JointKind::Continuous;
-                            }
-                            None
-                        }
-                        _ => Some((lim.lower, lim.upper)),
-                    };
                     let new_body = body_links.len();
+                    let spec = movable_joint(joint, kind, body, new_body, origin, path, warnings)?;
                     body_links.push(vec![child]);
                     body_top.push(child);
                     link_body[child] = Some((new_body, Isometry3::identity()));
-                    let dynamics = joint.dynamics.clone().unwrap_or_default();
-                    for (element, attribute, value) in [
-                        ("<dynamics>", "damping", dynamics.damping),
-                        ("<dynamics>", "friction", dynamics.friction),
-                        ("<limit>", "effort", lim.effort),
-                        ("<limit>", "velocity", lim.velocity),
-                    ] {
-                        if value < 0.0 {
-                            return Err(ArmError::Negative {
-                                path: p(),
-                                joint: joint.name.clone(),
-                                element,
-                                attribute,
-                                value,
-                            });
-                        }
-                    }
-                    joints.push(JointSpec {
-                        name: joint.name.clone(),
-                        kind,
-                        parent_body: body,
-                        child_body: new_body,
-                        origin,
-                        axis,
-                        limits,
-                        effort: (lim.effort > 0.0 && lim.effort.is_finite()).then_some(lim.effort),
-                        velocity_limit: (lim.velocity > 0.0 && lim.velocity.is_finite())
-                            .then_some(lim.velocity),
-                        damping: dynamics.damping,
-                        friction: dynamics.friction,
-                    });
+                    joints.push(spec);
                 }
             }
             queue.push_back(child);
         }
     }
-    // Links not reached from the root: their parent chain loops.
-    if let Some(unreached) = (0..robot.links.len()).find(|&l| link_body[l].is_none()) {
-        let joint = parent_joint[unreached].map_or_else(
-            || robot.links[unreached].name.clone(),
-            |j| robot.joints[j].name.clone(),
-        );
-        return Err(ArmError::Cycle { path: p(), joint });
-    }
-    if joints.is_empty() {
-        return Err(ArmError::NoMovableJoint { path: p() });
-    }
-    for joint in &robot.joints {
-        if joint.joint_type != urdf_rs::JointType::Fixed && joint.mimic.is_some() {
+    Ok(Walk {
+        link_body,
+        body_links,
+        body_top,
+        joints,
+    })
+}
+
+/// A movable joint: its axis, limits (none when lower = upper), effort, velocity limit, damping
+/// and friction checked.
+fn movable_joint(
+    joint: &urdf_rs::Joint,
+    kind: JointKind,
+    parent_body: usize,
+    child_body: usize,
+    origin: Isometry3<f64>,
+    path: &Path,
+    warnings: &mut Vec<String>,
+) -> Result<JointSpec, ArmError> {
+    let p = || path.to_path_buf();
+    let axis = Vector3::from(joint.axis.xyz.0);
+    let axis = Unit::try_new(axis, 1e-12).ok_or_else(|| ArmError::ZeroAxis {
+        path: p(),
+        joint: joint.name.clone(),
+    })?;
+    let lim = &joint.limit;
+    let mut kind = kind;
+    let limits = match kind {
+        JointKind::Continuous => None,
+        _ if lim.lower > lim.upper => {
+            return Err(ArmError::BadLimit {
+                path: p(),
+                joint: joint.name.clone(),
+                lower: lim.lower,
+                upper: lim.upper,
+            });
+        }
+        _ if lim.lower == lim.upper || (!lim.lower.is_finite() && !lim.upper.is_finite()) => {
             warnings.push(format!(
-                "joint '{}': <mimic> ignored; the joint is simulated as independent",
+                "joint '{}': no position limits (lower = upper); simulated without limits",
                 joint.name
             ));
+            if kind == JointKind::Revolute {
+                kind = JointKind::Continuous;
+            }
+            None
+        }
+        _ => Some((lim.lower, lim.upper)),
+    };
+    let dynamics = joint.dynamics.clone().unwrap_or_default();
+    for (element, attribute, value) in [
+        ("<dynamics>", "damping", dynamics.damping),
+        ("<dynamics>", "friction", dynamics.friction),
+        ("<limit>", "effort", lim.effort),
+        ("<limit>", "velocity", lim.velocity),
+    ] {
+        if value < 0.0 {
+            return Err(ArmError::Negative {
+                path: p(),
+                joint: joint.name.clone(),
+                element,
+                attribute,
+                value,
+            });
         }
     }
+    Ok(JointSpec {
+        name: joint.name.clone(),
+        kind,
+        parent_body,
+        child_body,
+        origin,
+        axis,
+        limits,
+        effort: (lim.effort > 0.0 && lim.effort.is_finite()).then_some(lim.effort),
+        velocity_limit: (lim.velocity > 0.0 && lim.velocity.is_finite()).then_some(lim.velocity),
+        damping: dynamics.damping,
+        friction: dynamics.friction,
+    })
+}
 
-    // Mass properties and colliders per body; link frames.
+/// One link's share of its body: mass, centre of mass and inertia in the body's frame.
+type MassPart = (f64, Vector3<f64>, Matrix3<f64>);
+/// Link frames, mass properties per body, colliders.
+type MassProperties = (Vec<LinkFrame>, Vec<BodySpec>, Vec<ColliderSpec>);
+
+/// Mass properties and colliders per body; link frames.
+fn mass_properties(
+    robot: &urdf_rs::Robot,
+    scanned: &Scan,
+    walk: &Walk,
+    path: &Path,
+    options: &UrdfOptions,
+    warnings: &mut Vec<String>,
+) -> Result<MassProperties, ArmError> {
+    let p = || path.to_path_buf();
+    let Walk {
+        link_body,
+        body_links,
+        body_top,
+        ..
+    } = walk;
     let mut links = Vec::with_capacity(robot.links.len());
     let mut bodies = Vec::with_capacity(body_links.len());
     let mut colliders = Vec::new();
     for (b, members) in body_links.iter().enumerate() {
-        let mut parts: Vec<(f64, Vector3<f64>, Matrix3<f64>)> = Vec::new();
+        let mut parts: Vec<MassPart> = Vec::new();
         for &l in members {
             let link = &robot.links[l];
             let (_, pose) = link_body[l].expect("every link is placed");
             let has_inertial = scanned.links_with_inertial.contains(&link.name);
-            let mut own_mass = 0.0;
-            let mass = link.inertial.mass.value;
-            if has_inertial && !(mass.is_finite() && mass >= 0.0) {
-                return Err(ArmError::BadMass {
-                    path: p(),
-                    link: link.name.clone(),
-                    mass,
-                });
-            }
-            // A massless link (a fixed root, a flange or tool frame) adds nothing; a moving body
-            // left without mass is refused below.
-            if has_inertial && mass == 0.0 {
-                let i = &link.inertial.inertia;
-                if [i.ixx, i.iyy, i.izz, i.ixy, i.ixz, i.iyz]
-                    .iter()
-                    .any(|v| *v != 0.0)
-                {
-                    warnings.push(format!(
-                        "link '{}': mass 0 with a non-zero inertia; the inertia is ignored",
-                        link.name
-                    ));
-                }
-            }
-            if has_inertial && mass > 0.0 {
-                let inertial = &link.inertial;
-                let i = &inertial.inertia;
-                let tensor = Matrix3::new(
-                    i.ixx, i.ixy, i.ixz, //
-                    i.ixy, i.iyy, i.iyz, //
-                    i.ixz, i.iyz, i.izz,
-                );
-                let (tensor, warning) =
-                    check_inertia(&tensor, &link.name, path, options.balance_inertia)?;
-                warnings.extend(warning);
-                let frame = pose * isometry(&inertial.origin);
-                let rot = frame.rotation.to_rotation_matrix();
-                let rotated = rot.matrix() * tensor * rot.matrix().transpose();
-                parts.push((mass, frame.translation.vector, rotated));
-                own_mass = mass;
-            }
-            for collision in &link.collision {
-                let shape_pose = pose * isometry(&collision.origin);
-                let shape = match &collision.geometry {
-                    urdf_rs::Geometry::Box { size } => ShapeSpec::Box {
-                        half_extents: Vector3::from(size.0) / 2.0,
-                    },
-                    urdf_rs::Geometry::Cylinder { radius, length } => ShapeSpec::Cylinder {
-                        radius: *radius,
-                        length: *length,
-                    },
-                    urdf_rs::Geometry::Capsule { radius, length } => ShapeSpec::Capsule {
-                        radius: *radius,
-                        length: *length,
-                    },
-                    urdf_rs::Geometry::Sphere { radius } => ShapeSpec::Sphere { radius: *radius },
-                    urdf_rs::Geometry::Mesh { filename, .. } => {
-                        warnings.push(format!(
-                            "link '{}': collision mesh {:?} skipped (meshes are not loaded; \
-                             the camera will not see this shape occlude)",
-                            link.name,
-                            sanitize_mesh_name(filename)
-                        ));
-                        continue;
-                    }
-                };
-                let degenerate = match shape {
-                    ShapeSpec::Box { half_extents } => half_extents.min() <= 0.0,
-                    ShapeSpec::Cylinder { radius, length }
-                    | ShapeSpec::Capsule { radius, length } => radius <= 0.0 || length < 0.0,
-                    ShapeSpec::Sphere { radius } => radius <= 0.0,
-                };
-                if degenerate {
-                    warnings.push(format!(
-                        "link '{}': degenerate collision shape skipped",
-                        link.name
-                    ));
-                    continue;
-                }
-                colliders.push(ColliderSpec::new(link.name.clone(), b, shape, shape_pose));
-            }
+            let part = link_inertia(link, pose, has_inertial, path, options, warnings)?;
+            let own_mass = part.map_or(0.0, |(mass, _, _)| mass);
+            parts.extend(part);
+            link_colliders(link, b, pose, &mut colliders, warnings);
             links.push(LinkFrame {
                 name: link.name.clone(),
                 body: b,
@@ -663,21 +692,7 @@ pub(crate) fn build_model(
                 mass: own_mass,
             });
         }
-        let mass: f64 = parts.iter().map(|(m, _, _)| m).sum();
-        let (com, inertia) = if mass > 0.0 {
-            let com = parts
-                .iter()
-                .fold(Vector3::zeros(), |acc, (m, c, _)| acc + c * *m)
-                / mass;
-            // Parallel-axis theorem about the body's centre of mass.
-            let inertia = parts.iter().fold(Matrix3::zeros(), |acc, (m, c, i)| {
-                let d = c - com;
-                acc + i + (Matrix3::identity() * d.dot(&d) - d * d.transpose()) * *m
-            });
-            (com, inertia)
-        } else {
-            (Vector3::zeros(), Matrix3::zeros())
-        };
+        let (mass, com, inertia) = combine_parts(&parts);
         if b > 0 && mass <= 0.0 {
             return Err(ArmError::MasslessBody {
                 path: p(),
@@ -691,18 +706,134 @@ pub(crate) fn build_model(
             inertia,
         });
     }
-    // Keep links in file order for listing.
-    links.sort_by_key(|l| link_index[l.name.as_str()]);
+    Ok((links, bodies, colliders))
+}
 
-    Ok(ArmModel {
-        name: robot.name.clone(),
-        source: path.to_path_buf(),
-        bodies,
-        joints,
-        links,
-        colliders,
-        warnings,
-    })
+/// A link's mass, centre of mass and inertia (rotated into its body's frame), if it has mass.
+fn link_inertia(
+    link: &urdf_rs::Link,
+    pose: Isometry3<f64>,
+    has_inertial: bool,
+    path: &Path,
+    options: &UrdfOptions,
+    warnings: &mut Vec<String>,
+) -> Result<Option<MassPart>, ArmError> {
+    let p = || path.to_path_buf();
+    let mass = link.inertial.mass.value;
+    if has_inertial && !(mass.is_finite() && mass >= 0.0) {
+        return Err(ArmError::BadMass {
+            path: p(),
+            link: link.name.clone(),
+            mass,
+        });
+    }
+    // A massless link (a fixed root, a flange or tool frame) adds nothing; a moving body
+    // left without mass is refused below.
+    if has_inertial && mass == 0.0 {
+        let i = &link.inertial.inertia;
+        if [i.ixx, i.iyy, i.izz, i.ixy, i.ixz, i.iyz]
+            .iter()
+            .any(|v| *v != 0.0)
+        {
+            warnings.push(format!(
+                "link '{}': mass 0 with a non-zero inertia; the inertia is ignored",
+                link.name
+            ));
+        }
+    }
+    if has_inertial && mass > 0.0 {
+        let inertial = &link.inertial;
+        let i = &inertial.inertia;
+        let tensor = Matrix3::new(
+            i.ixx, i.ixy, i.ixz, //
+            i.ixy, i.iyy, i.iyz, //
+            i.ixz, i.iyz, i.izz,
+        );
+        let (tensor, warning) = check_inertia(&tensor, &link.name, path, options.balance_inertia)?;
+        warnings.extend(warning);
+        let frame = pose * isometry(&inertial.origin);
+        let rot = frame.rotation.to_rotation_matrix();
+        let rotated = rot.matrix() * tensor * rot.matrix().transpose();
+        return Ok(Some((mass, frame.translation.vector, rotated)));
+    }
+    Ok(None)
+}
+
+/// A link's collision shapes in its body's frame (meshes and degenerate shapes skipped, with a
+/// warning).
+fn link_colliders(
+    link: &urdf_rs::Link,
+    body: usize,
+    pose: Isometry3<f64>,
+    colliders: &mut Vec<ColliderSpec>,
+    warnings: &mut Vec<String>,
+) {
+    for collision in &link.collision {
+        let shape_pose = pose * isometry(&collision.origin);
+        let shape = match &collision.geometry {
+            urdf_rs::Geometry::Box { size } => ShapeSpec::Box {
+                half_extents: Vector3::from(size.0) / 2.0,
+            },
+            urdf_rs::Geometry::Cylinder { radius, length } => ShapeSpec::Cylinder {
+                radius: *radius,
+                length: *length,
+            },
+            urdf_rs::Geometry::Capsule { radius, length } => ShapeSpec::Capsule {
+                radius: *radius,
+                length: *length,
+            },
+            urdf_rs::Geometry::Sphere { radius } => ShapeSpec::Sphere { radius: *radius },
+            urdf_rs::Geometry::Mesh { filename, .. } => {
+                warnings.push(format!(
+                    "link '{}': collision mesh {:?} skipped (meshes are not loaded; \
+                     the camera will not see this shape occlude)",
+                    link.name,
+                    sanitize_mesh_name(filename)
+                ));
+                continue;
+            }
+        };
+        let degenerate = match shape {
+            ShapeSpec::Box { half_extents } => half_extents.min() <= 0.0,
+            ShapeSpec::Cylinder { radius, length } | ShapeSpec::Capsule { radius, length } => {
+                radius <= 0.0 || length < 0.0
+            }
+            ShapeSpec::Sphere { radius } => radius <= 0.0,
+        };
+        if degenerate {
+            warnings.push(format!(
+                "link '{}': degenerate collision shape skipped",
+                link.name
+            ));
+            continue;
+        }
+        colliders.push(ColliderSpec::new(
+            link.name.clone(),
+            body,
+            shape,
+            shape_pose,
+        ));
+    }
+}
+
+/// A body's mass, centre of mass and inertia about it, from its links' parts.
+fn combine_parts(parts: &[(f64, Vector3<f64>, Matrix3<f64>)]) -> (f64, Vector3<f64>, Matrix3<f64>) {
+    let mass: f64 = parts.iter().map(|(m, _, _)| m).sum();
+    let (com, inertia) = if mass > 0.0 {
+        let com = parts
+            .iter()
+            .fold(Vector3::zeros(), |acc, (m, c, _)| acc + c * *m)
+            / mass;
+        // Parallel-axis theorem about the body's centre of mass.
+        let inertia = parts.iter().fold(Matrix3::zeros(), |acc, (m, c, i)| {
+            let d = c - com;
+            acc + i + (Matrix3::identity() * d.dot(&d) - d * d.transpose()) * *m
+        });
+        (com, inertia)
+    } else {
+        (Vector3::zeros(), Matrix3::zeros())
+    };
+    (mass, com, inertia)
 }
 
 /// The mesh file name as it may be shown: never resolved against the file system, so a

@@ -545,31 +545,7 @@ impl Uaic {
             self.g_point = g;
             return self.refuse();
         }
-        match self.config.update {
-            // At x_hat the prior's gradient vanishes: -dF/dx = rhs, and x = x_hat + eta H^-1 rhs.
-            UpdateScheme::GaussNewton => {
-                self.candidate.gemv(1.0, &self.covariance, &self.rhs, 0.0);
-                for i in 0..2 * n {
-                    self.candidate[i] = self.x_hat[i] + self.candidate[i] * self.config.step;
-                }
-            }
-            // x_k = x_{k-1} + dt (D x_{k-1} - kappa_mu dF/dx(x_{k-1})), prior mean A x_{k-2}.
-            UpdateScheme::Gradient => {
-                let (_, grad) = self.free_energy(
-                    self.point.as_slice(),
-                    self.x_prev.as_slice(),
-                    readings,
-                    precisions,
-                );
-                self.candidate.copy_from(&self.point);
-                for i in 0..n {
-                    self.candidate[i] += dt * self.point[n + i];
-                }
-                for (v, gr) in self.candidate.iter_mut().zip(&grad) {
-                    *v -= dt * self.config.kappa_mu * gr;
-                }
-            }
-        }
+        self.update_candidate(readings, precisions);
         if !self.candidate.iter().all(|v| v.is_finite()) {
             self.g_point = g;
             return self.refuse();
@@ -597,6 +573,49 @@ impl Uaic {
                 .map(|y| y - self.predict_channel(c, &self.x, &gg));
         }
         self.g_post = gg;
+        let free_energy = self.belief_free_energy(precisions);
+        self.report.free_energy = Some(free_energy);
+        self.report.finite = free_energy.is_finite();
+        self.updates += 1;
+        &self.report
+    }
+
+    /// The update's candidate belief: the Gauss-Newton step from x_hat, or the gradient step from
+    /// the previous belief.
+    fn update_candidate(&mut self, readings: &Readings, precisions: &[f64]) {
+        let n = self.layout.n_joints();
+        let dt = self.dt;
+        match self.config.update {
+            // At x_hat the prior's gradient vanishes: -dF/dx = rhs, and x = x_hat + eta H^-1 rhs.
+            UpdateScheme::GaussNewton => {
+                self.candidate.gemv(1.0, &self.covariance, &self.rhs, 0.0);
+                for i in 0..2 * n {
+                    self.candidate[i] = self.x_hat[i] + self.candidate[i] * self.config.step;
+                }
+            }
+            // x_k = x_{k-1} + dt (D x_{k-1} - kappa_mu dF/dx(x_{k-1})), prior mean A x_{k-2}.
+            UpdateScheme::Gradient => {
+                let (_, grad) = self.free_energy(
+                    self.point.as_slice(),
+                    self.x_prev.as_slice(),
+                    readings,
+                    precisions,
+                );
+                self.candidate.copy_from(&self.point);
+                for i in 0..n {
+                    self.candidate[i] += dt * self.point[n + i];
+                }
+                for (v, gr) in self.candidate.iter_mut().zip(&grad) {
+                    *v -= dt * self.config.kappa_mu * gr;
+                }
+            }
+        }
+    }
+
+    /// F at the updated belief, from the residuals after the update and the prior's residual.
+    fn belief_free_energy(&mut self, precisions: &[f64]) -> f64 {
+        let n = self.layout.n_joints();
+        let m = self.layout.len();
         let mut free_energy = 0.0;
         for c in 0..m {
             if let Some(e) = self.report.residuals[c]
@@ -628,10 +647,7 @@ impl Uaic {
             }
         }
         self.ex = ex;
-        self.report.free_energy = Some(free_energy);
-        self.report.finite = free_energy.is_finite();
-        self.updates += 1;
-        &self.report
+        free_energy
     }
 
     /// Factorises H and stores H^-1 as the posterior covariance, reusing the factor's storage.

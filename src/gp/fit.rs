@@ -287,49 +287,13 @@ pub(crate) fn fit(
     let big_n = inputs.nrows();
     let n = inputs.ncols();
     let r = outputs.ncols();
-    if big_n < 2 * n + 2 {
-        return Err(GpError::TooFewPoints {
-            min: 2 * n + 2,
-            got: big_n,
-        });
-    }
-    if outputs.nrows() != big_n {
-        return Err(GpError::BadData(
-            "inputs and outputs differ in length".into(),
-        ));
-    }
-    if !inputs.iter().chain(outputs.iter()).all(|v| v.is_finite()) {
-        return Err(GpError::BadData("a training value is not finite".into()));
-    }
+    check_data(inputs, outputs)?;
     let mean: Vec<f64> = (0..r).map(|c| outputs.column(c).mean()).collect();
     let mut y = outputs.clone();
     for c in 0..r {
         y.column_mut(c).add_scalar_mut(-mean[c]);
     }
-    let sf0 = (0..r)
-        .map(|c| y.column(c).norm() / (big_n as f64).sqrt())
-        .fold(0.0, f64::max)
-        .max(1e-6);
-    let widths: Vec<f64> = (0..n)
-        .map(|d| {
-            let col = inputs.column(d);
-            (col.max() - col.min()).max(1e-3)
-        })
-        .collect();
-    let starts: Vec<Vec<f64>> = [(0.5, 1.0, 0.05), (1.0, 2.0, 0.02), (0.25, 1.0, 0.1)]
-        .iter()
-        .cycle()
-        .take(options.restarts.max(1))
-        .enumerate()
-        .map(|(i, &(lw, sf, sn))| {
-            // Later cycles through the list start a little further out.
-            let spread = 1.5f64.powi((i / 3) as i32);
-            let mut t: Vec<f64> = widths.iter().map(|w| (w * lw * spread).ln()).collect();
-            t.push((sf0 * sf).ln());
-            t.push((sf0 * sn).ln());
-            t
-        })
-        .collect();
+    let starts = starting_points(inputs, &y, options);
 
     let evaluations = AtomicUsize::new(0);
     let problem = MarginalLikelihood::new(inputs, &y, options.min_noise_std, &evaluations);
@@ -337,23 +301,7 @@ pub(crate) fn fit(
     // best is taken in the starts' order.
     let optima: Vec<Result<Vec<f64>, GpError>> = starts
         .into_par_iter()
-        .map(|start| {
-            let linesearch = MoreThuenteLineSearch::new();
-            let solver = LBFGS::new(linesearch, 7)
-                .with_tolerance_grad(1e-4 * big_n as f64)
-                .and_then(|s| s.with_tolerance_cost(1e-9))
-                .map_err(|e| GpError::Optimiser(e.to_string()))?;
-            let start_problem =
-                MarginalLikelihood::new(inputs, &y, options.min_noise_std, &evaluations);
-            let result = Executor::new(start_problem, solver)
-                .configure(|state| state.param(start.clone()).max_iters(options.max_iters))
-                .run();
-            Ok(match result {
-                Ok(mut res) => res.state.take_best_param().unwrap_or(start),
-                // A failed line search still leaves the start as a candidate.
-                Err(_) => start,
-            })
-        })
+        .map(|start| optimise(start, inputs, &y, options, &evaluations))
         .collect();
     let mut best: Option<(f64, Vec<f64>)> = None;
     let mut per_start = Vec::new();
@@ -401,6 +349,86 @@ pub(crate) fn fit(
             evaluations: evaluations.load(Ordering::Relaxed),
         },
     ))
+}
+
+/// The training data: enough points for the hyperparameters, inputs and outputs alike long, all
+/// finite.
+fn check_data(inputs: &DMatrix<f64>, outputs: &DMatrix<f64>) -> Result<(), GpError> {
+    let big_n = inputs.nrows();
+    let n = inputs.ncols();
+    if big_n < 2 * n + 2 {
+        return Err(GpError::TooFewPoints {
+            min: 2 * n + 2,
+            got: big_n,
+        });
+    }
+    if outputs.nrows() != big_n {
+        return Err(GpError::BadData(
+            "inputs and outputs differ in length".into(),
+        ));
+    }
+    if !inputs.iter().chain(outputs.iter()).all(|v| v.is_finite()) {
+        return Err(GpError::BadData("a training value is not finite".into()));
+    }
+    Ok(())
+}
+
+/// The optimiser's starting points (log length scales, log signal std, log noise std), scaled
+/// by the inputs' widths and the centred outputs' spread.
+fn starting_points(inputs: &DMatrix<f64>, y: &DMatrix<f64>, options: &FitOptions) -> Vec<Vec<f64>> {
+    let big_n = inputs.nrows();
+    let n = inputs.ncols();
+    let r = y.ncols();
+    let sf0 = (0..r)
+        .map(|c| y.column(c).norm() / (big_n as f64).sqrt())
+        .fold(0.0, f64::max)
+        .max(1e-6);
+    let widths: Vec<f64> = (0..n)
+        .map(|d| {
+            let col = inputs.column(d);
+            (col.max() - col.min()).max(1e-3)
+        })
+        .collect();
+    [(0.5, 1.0, 0.05), (1.0, 2.0, 0.02), (0.25, 1.0, 0.1)]
+        .iter()
+        .cycle()
+        .take(options.restarts.max(1))
+        .enumerate()
+        .map(|(i, &(lw, sf, sn))| {
+            // Later cycles through the list start a little further out.
+            let spread = 1.5f64.powi((i / 3) as i32);
+            let mut t: Vec<f64> = widths.iter().map(|w| (w * lw * spread).ln()).collect();
+            t.push((sf0 * sf).ln());
+            t.push((sf0 * sn).ln());
+            t
+        })
+        .collect()
+}
+
+/// One L-BFGS run of the negative log marginal likelihood from `start`; its best point, or the
+/// start itself when the line search fails.
+fn optimise(
+    start: Vec<f64>,
+    inputs: &DMatrix<f64>,
+    y: &DMatrix<f64>,
+    options: &FitOptions,
+    evaluations: &AtomicUsize,
+) -> Result<Vec<f64>, GpError> {
+    let big_n = inputs.nrows();
+    let linesearch = MoreThuenteLineSearch::new();
+    let solver = LBFGS::new(linesearch, 7)
+        .with_tolerance_grad(1e-4 * big_n as f64)
+        .and_then(|s| s.with_tolerance_cost(1e-9))
+        .map_err(|e| GpError::Optimiser(e.to_string()))?;
+    let start_problem = MarginalLikelihood::new(inputs, y, options.min_noise_std, evaluations);
+    let result = Executor::new(start_problem, solver)
+        .configure(|state| state.param(start.clone()).max_iters(options.max_iters))
+        .run();
+    Ok(match result {
+        Ok(mut res) => res.state.take_best_param().unwrap_or(start),
+        // A failed line search still leaves the start as a candidate.
+        Err(_) => start,
+    })
 }
 
 /// Convenience for tests: the negative-LML problem's value and gradient at theta.

@@ -575,7 +575,7 @@ impl Detector {
         for gi in 0..self.tests.len() {
             self.state.normalised_distance[gi] = None;
             let test = &self.tests[gi];
-            let Some(Some(inv)) = test.inverse.get(t) else {
+            let Some(Some(_)) = test.inverse.get(t) else {
                 continue;
             };
             if test.channels.iter().any(|&c| innovations[c].is_none()) {
@@ -585,121 +585,147 @@ impl Detector {
             for (j, &c) in test.channels.iter().enumerate() {
                 self.scratch[j] = innovations[c].unwrap_or(0.0) - test.mean[t * dim + j];
             }
-            // Re-admission of the group's isolated channels.
-            let mut readmitted = false;
-            for (j, &c) in test.channels.iter().enumerate() {
-                let Some(alarm) = self.isolated_by[c] else {
-                    continue;
-                };
-                let z = self.scratch[j].abs() / test.std[t * dim + j];
-                self.quiet[c] = if z <= one_d_bound {
-                    self.quiet[c] + 1
-                } else {
-                    0
-                };
-                if self.rearm_ticks > 0 && self.quiet[c] >= self.rearm_ticks {
-                    self.isolated_by[c] = None;
-                    self.quiet[c] = 0;
-                    self.cusum[c] = (0.0, 0.0);
-                    readmitted = true;
-                    let still = self.isolated_by.contains(&Some(alarm));
-                    if !still && let Some(a) = self.state.alarms.get_mut(alarm) {
-                        a.cleared = Some(tick);
-                    }
-                }
-            }
-            if readmitted {
-                self.state
-                    .isolated
-                    .retain(|&c| self.isolated_by[c].is_some());
-            }
+            self.readmit(gi, t, tick, one_d_bound);
             // The test over the channels not isolated.
+            let test = &self.tests[gi];
             active.clear();
             active.extend((0..dim).filter(|&j| self.isolated_by[test.channels[j]].is_none()));
             if active.is_empty() {
                 continue;
             }
             if self.test == DetectorTest::Cusum {
-                let (k, h) = (self.cusum_drift, self.cusum_threshold);
-                let mut worst: Option<(usize, f64)> = None;
-                let mut largest = 0.0f64;
-                for &j in &active {
-                    let c = test.channels[j];
-                    let z = self.scratch[j] / test.std[t * dim + j];
-                    let (up, down) = &mut self.cusum[c];
-                    *up = (*up + z - k).max(0.0);
-                    *down = (*down - z - k).max(0.0);
-                    let s = up.max(*down);
-                    largest = largest.max(s);
-                    if s > h && worst.is_none_or(|(_, w)| s > w) {
-                        worst = Some((j, s));
-                    }
-                }
-                self.state.normalised_distance[gi] = Some(largest / h);
-                if let Some((j, _)) = worst {
-                    let channels: Vec<usize> = match self.isolation {
-                        Isolation::Group => active.iter().map(|&j| test.channels[j]).collect(),
-                        Isolation::Channel => vec![test.channels[j]],
-                    };
-                    for &c in &channels {
-                        self.cusum[c] = (0.0, 0.0);
-                    }
-                    let group = test.group;
-                    self.raise(tick, group, channels);
-                }
-                continue;
-            }
-            let d2 = if active.len() == dim {
-                // r' C^-1 r without a temporary.
-                let r = &self.scratch[..dim];
-                let mut q = 0.0;
-                for b in 0..dim {
-                    let mut row = 0.0;
-                    for a in 0..dim {
-                        row += inv[(a, b)] * r[a];
-                    }
-                    q += row * r[b];
-                }
-                q
+                self.cusum_test(gi, t, tick, &active);
             } else {
-                let covariance = &test.covariance[t * dim * dim..(t + 1) * dim * dim];
-                match sub_quadratic_form(
-                    covariance,
-                    dim,
-                    &active,
-                    &self.scratch,
-                    &mut self.factor,
-                    &mut self.solved,
-                ) {
-                    Some(q) => q,
-                    None => continue,
-                }
-            };
-            let threshold = (active.len() as f64 / self.alpha).sqrt();
-            let d = d2.max(0.0).sqrt();
-            self.state.normalised_distance[gi] = Some(d / threshold);
-            if d > threshold {
-                let channels = match self.isolation {
-                    Isolation::Group => active.iter().map(|&j| test.channels[j]).collect(),
-                    Isolation::Channel => {
-                        let worst = active
-                            .iter()
-                            .copied()
-                            .max_by(|&a, &b| {
-                                let na = self.scratch[a].abs() / test.std[t * dim + a];
-                                let nb = self.scratch[b].abs() / test.std[t * dim + b];
-                                na.total_cmp(&nb)
-                            })
-                            .unwrap_or(0);
-                        vec![test.channels[worst]]
-                    }
-                };
-                let group = test.group;
-                self.raise(tick, group, channels);
+                self.distance_test(gi, t, tick, &active);
             }
         }
         self.active = active;
         &self.state
+    }
+
+    /// Re-admits group `gi`'s isolated channels that stayed within the one-dimensional bound for
+    /// the re-arm time (their alarm cleared when it isolates nothing more).
+    fn readmit(&mut self, gi: usize, t: usize, tick: u64, one_d_bound: f64) {
+        let test = &self.tests[gi];
+        let dim = test.dim;
+        let mut readmitted = false;
+        for (j, &c) in test.channels.iter().enumerate() {
+            let Some(alarm) = self.isolated_by[c] else {
+                continue;
+            };
+            let z = self.scratch[j].abs() / test.std[t * dim + j];
+            self.quiet[c] = if z <= one_d_bound {
+                self.quiet[c] + 1
+            } else {
+                0
+            };
+            if self.rearm_ticks > 0 && self.quiet[c] >= self.rearm_ticks {
+                self.isolated_by[c] = None;
+                self.quiet[c] = 0;
+                self.cusum[c] = (0.0, 0.0);
+                readmitted = true;
+                let still = self.isolated_by.contains(&Some(alarm));
+                if !still && let Some(a) = self.state.alarms.get_mut(alarm) {
+                    a.cleared = Some(tick);
+                }
+            }
+        }
+        if readmitted {
+            self.state
+                .isolated
+                .retain(|&c| self.isolated_by[c].is_some());
+        }
+    }
+
+    /// The CUSUM test of group `gi` over its `active` channels (two-sided, per channel).
+    fn cusum_test(&mut self, gi: usize, t: usize, tick: u64, active: &[usize]) {
+        let test = &self.tests[gi];
+        let dim = test.dim;
+        let (k, h) = (self.cusum_drift, self.cusum_threshold);
+        let mut worst: Option<(usize, f64)> = None;
+        let mut largest = 0.0f64;
+        for &j in active {
+            let c = test.channels[j];
+            let z = self.scratch[j] / test.std[t * dim + j];
+            let (up, down) = &mut self.cusum[c];
+            *up = (*up + z - k).max(0.0);
+            *down = (*down - z - k).max(0.0);
+            let s = up.max(*down);
+            largest = largest.max(s);
+            if s > h && worst.is_none_or(|(_, w)| s > w) {
+                worst = Some((j, s));
+            }
+        }
+        self.state.normalised_distance[gi] = Some(largest / h);
+        if let Some((j, _)) = worst {
+            let channels: Vec<usize> = match self.isolation {
+                Isolation::Group => active.iter().map(|&j| test.channels[j]).collect(),
+                Isolation::Channel => vec![test.channels[j]],
+            };
+            for &c in &channels {
+                self.cusum[c] = (0.0, 0.0);
+            }
+            let group = test.group;
+            self.raise(tick, group, channels);
+        }
+    }
+
+    /// The Chebyshev test of group `gi` over its `active` channels: the Mahalanobis distance of
+    /// their innovations against sqrt(channels / alpha).
+    fn distance_test(&mut self, gi: usize, t: usize, tick: u64, active: &[usize]) {
+        let test = &self.tests[gi];
+        let dim = test.dim;
+        let Some(Some(inv)) = test.inverse.get(t) else {
+            return;
+        };
+        let d2 = if active.len() == dim {
+            // r' C^-1 r without a temporary.
+            let r = &self.scratch[..dim];
+            let mut q = 0.0;
+            for b in 0..dim {
+                let mut row = 0.0;
+                for a in 0..dim {
+                    row += inv[(a, b)] * r[a];
+                }
+                q += row * r[b];
+            }
+            q
+        } else {
+            let covariance = &test.covariance[t * dim * dim..(t + 1) * dim * dim];
+            match sub_quadratic_form(
+                covariance,
+                dim,
+                active,
+                &self.scratch,
+                &mut self.factor,
+                &mut self.solved,
+            ) {
+                Some(q) => q,
+                None => return,
+            }
+        };
+        let threshold = (active.len() as f64 / self.alpha).sqrt();
+        let d = d2.max(0.0).sqrt();
+        self.state.normalised_distance[gi] = Some(d / threshold);
+        if d > threshold {
+            let channels = match self.isolation {
+                Isolation::Group => active.iter().map(|&j| test.channels[j]).collect(),
+                Isolation::Channel => {
+                    let worst = active
+                        .iter()
+                        .copied()
+                        .max_by(|&a, &b| {
+                            let na = self.scratch[a].abs() / test.std[t * dim + a];
+                            let nb = self.scratch[b].abs() / test.std[t * dim + b];
+                            na.total_cmp(&nb)
+                        })
+                        .unwrap_or(0);
+                    vec![test.channels[worst]]
+                }
+            };
+            let group = test.group;
+            self.raise(tick, group, channels);
+        }
     }
 
     fn raise(&mut self, tick: u64, group: SensorGroup, channels: Vec<usize>) {

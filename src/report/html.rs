@@ -231,6 +231,64 @@ pub fn run_page(
         text("method"),
         s("seed")
     );
+    let (columns, plots, missing) = run_plots(rows);
+    let faults: Vec<f64> = s("faults")
+        .as_array()
+        .map(|a| {
+            a.iter()
+                .filter_map(|f| f.get("start").and_then(Value::as_f64))
+                .collect()
+        })
+        .unwrap_or_default();
+
+    let mut body = run_summary(summary);
+    let _ = write!(
+        body,
+        "<h2 id=\"plots\">Plots</h2>\n<p class=\"note\">{} evenly spaced rows of the run's {} recorded rows.</p>\n<div class=\"grid\">",
+        rows.rows.len(),
+        total
+    );
+    for p in &plots {
+        let _ = write!(
+            body,
+            "<div class=\"plot\" id=\"{}\"></div>",
+            esc(p["id"].as_str().unwrap_or_default())
+        );
+    }
+    body.push_str("</div>\n");
+    if !missing.is_empty() {
+        let _ = writeln!(
+            body,
+            "<p class=\"note\">Not plotted: {}.</p>",
+            esc(&missing.join("; "))
+        );
+    }
+    body.push_str("<h2 id=\"scenario\">Scenario as run</h2>\n");
+    match resolved {
+        Some(text) => {
+            let _ = writeln!(body, "<pre>{}</pre>", esc(text));
+        }
+        None => body.push_str("<p>(no scenario.resolved.toml in the folder)</p>\n"),
+    }
+    let subtitle = format!(
+        "outcome {} | {} ticks | aift {}",
+        text("outcome"),
+        s("ticks"),
+        text("aift_version")
+    );
+    let data = json!({"x": "t", "columns": columns, "plots": plots, "faults": faults});
+    page(&title, &subtitle, &body, &data)
+}
+
+/// The embedded columns and the plots of a run (joints, belief error, health, detector, free
+/// energy), and what could not be plotted.
+fn run_plots(
+    rows: &TrajectoryRecorder,
+) -> (
+    serde_json::Map<String, Value>,
+    Vec<Value>,
+    Vec<&'static str>,
+) {
     let series = |name: &str| rows.series(name).unwrap_or_default();
     let n = rows.n_joints();
     let mut columns = serde_json::Map::new();
@@ -304,15 +362,12 @@ pub fn run_page(
     } else {
         missing.push("free energy (this estimator defines none)");
     }
-    let faults: Vec<f64> = s("faults")
-        .as_array()
-        .map(|a| {
-            a.iter()
-                .filter_map(|f| f.get("start").and_then(Value::as_f64))
-                .collect()
-        })
-        .unwrap_or_default();
+    (columns, plots, missing)
+}
 
+/// The navigation, the summary table and the faults table of a run.
+fn run_summary(summary: &Value) -> String {
+    let s = |k: &str| summary.get(k).cloned().unwrap_or(Value::Null);
     let mut body = String::new();
     let _ = write!(
         body,
@@ -365,42 +420,7 @@ pub fn run_page(
         }
         body.push_str("</table>\n");
     }
-    let _ = write!(
-        body,
-        "<h2 id=\"plots\">Plots</h2>\n<p class=\"note\">{} evenly spaced rows of the run's {} recorded rows.</p>\n<div class=\"grid\">",
-        rows.rows.len(),
-        total
-    );
-    for p in &plots {
-        let _ = write!(
-            body,
-            "<div class=\"plot\" id=\"{}\"></div>",
-            esc(p["id"].as_str().unwrap_or_default())
-        );
-    }
-    body.push_str("</div>\n");
-    if !missing.is_empty() {
-        let _ = writeln!(
-            body,
-            "<p class=\"note\">Not plotted: {}.</p>",
-            esc(&missing.join("; "))
-        );
-    }
-    body.push_str("<h2 id=\"scenario\">Scenario as run</h2>\n");
-    match resolved {
-        Some(text) => {
-            let _ = writeln!(body, "<pre>{}</pre>", esc(text));
-        }
-        None => body.push_str("<p>(no scenario.resolved.toml in the folder)</p>\n"),
-    }
-    let subtitle = format!(
-        "outcome {} | {} ticks | aift {}",
-        text("outcome"),
-        s("ticks"),
-        text("aift_version")
-    );
-    let data = json!({"x": "t", "columns": columns, "plots": plots, "faults": faults});
-    page(&title, &subtitle, &body, &data)
+    body
 }
 
 /// A strip plot (one row per method, a dot per seed, log-scaled x) as SVG.
@@ -615,8 +635,28 @@ fn campaign_page(dir: &Path) -> Result<String, ReportError> {
             arms.push(a.to_string());
         }
     }
+    let mut body = campaign_summary(&arms, &doc);
+    for arm in &arms {
+        arm_matrix(&mut body, dir, arm, &methods, &cells)?;
+    }
+    cell_tables(&mut body, &cells);
+    reaching_table(&mut body, &doc);
+    let title = format!("Campaign: {}", doc["campaign"].as_str().unwrap_or("?"));
+    let subtitle = format!(
+        "{} cells x {} methods x {} seeds | fingerprint {} | aift {}",
+        cells.len(),
+        methods.len(),
+        doc["seeds"],
+        doc["fingerprint"].as_str().unwrap_or("?"),
+        doc["aift_version"].as_str().unwrap_or("?")
+    );
+    Ok(page(&title, &subtitle, &body, &json!({"plots": []})))
+}
+
+/// The navigation (one link per arm) and the per-method table of a campaign.
+fn campaign_summary(arms: &[String], doc: &Value) -> String {
     let mut body = String::from("<nav><a href=\"#summary\">Summary</a>");
-    for a in &arms {
+    for a in arms {
         let _ = write!(body, "<a href=\"#arm-{}\">{}</a>", esc(a), esc(a));
     }
     body.push_str("<a href=\"#cells\">Cells</a></nav>\n<h2 id=\"summary\">Per method</h2>\n<table><tr><th>method</th><th>cells</th><th>recovered</th><th>degraded</th><th>failed</th><th>diverged</th><th>worse than no-FT</th><th>recovers where the oracle does</th><th>within 10x the oracle</th><th>false alarms / h</th></tr>");
@@ -640,69 +680,83 @@ fn campaign_page(dir: &Path) -> Result<String, ReportError> {
         );
     }
     body.push_str("</table>\n");
-    for arm in &arms {
-        let _ = writeln!(body, "<h2 id=\"arm-{}\">{}</h2>", esc(arm), esc(arm));
-        // The heatmap as an image (a data URI: the CSP allows it, and nothing in an SVG shown
-        // as an image runs); only a plain file name is looked up.
-        if arm.contains(['/', '\\']) || arm.contains("..") || arm.is_empty() {
-            return Err(bad(
-                &dir.join(super::campaign_files::CAMPAIGN_JSON),
-                format!("`cells[].arm`: {arm:?} is not a plain name"),
-            ));
-        }
-        let heatmap = dir.join(format!("heatmap_{arm}.svg"));
-        if let Some(svg) = read_optional(&heatmap)? {
-            use base64::Engine as _;
-            let data = base64::engine::general_purpose::STANDARD.encode(svg.as_bytes());
-            let _ = writeln!(
-                body,
-                "<img class=\"static\" alt=\"heatmap of {}\" src=\"data:image/svg+xml;base64,{data}\">",
-                esc(arm)
-            );
-        }
-        body.push_str("<table><tr><th>cell</th>");
-        for m in &methods {
-            let _ = write!(body, "<th>{}</th>", esc(m));
+    body
+}
+
+/// An arm's heatmap and its matrix (a row per cell, an entry per method linking to the cell).
+fn arm_matrix(
+    body: &mut String,
+    dir: &Path,
+    arm: &str,
+    methods: &[String],
+    cells: &[Value],
+) -> Result<(), ReportError> {
+    let _ = writeln!(body, "<h2 id=\"arm-{}\">{}</h2>", esc(arm), esc(arm));
+    // The heatmap as an image (a data URI: the CSP allows it, and nothing in an SVG shown
+    // as an image runs); only a plain file name is looked up.
+    if arm.contains(['/', '\\']) || arm.contains("..") || arm.is_empty() {
+        return Err(bad(
+            &dir.join(super::campaign_files::CAMPAIGN_JSON),
+            format!("`cells[].arm`: {arm:?} is not a plain name"),
+        ));
+    }
+    let heatmap = dir.join(format!("heatmap_{arm}.svg"));
+    if let Some(svg) = read_optional(&heatmap)? {
+        use base64::Engine as _;
+        let data = base64::engine::general_purpose::STANDARD.encode(svg.as_bytes());
+        let _ = writeln!(
+            body,
+            "<img class=\"static\" alt=\"heatmap of {}\" src=\"data:image/svg+xml;base64,{data}\">",
+            esc(arm)
+        );
+    }
+    body.push_str("<table><tr><th>cell</th>");
+    for m in methods {
+        let _ = write!(body, "<th>{}</th>", esc(m));
+    }
+    body.push_str("</tr>");
+    for c in cells.iter().filter(|c| c["arm"].as_str() == Some(arm)) {
+        let index = c["index"].as_u64().unwrap_or(0);
+        let _ = write!(
+            body,
+            "<tr><td><a href=\"#cell-{index}\">{}</a></td>",
+            esc(c["label"].as_str().unwrap_or("?"))
+        );
+        let results = c["results"].as_array().cloned().unwrap_or_default();
+        for m in methods {
+            match results.iter().find(|r| r["method"].as_str() == Some(m)) {
+                Some(r) => {
+                    let verdict = r["verdict"].as_str().unwrap_or("");
+                    let worse = r["worse_than_no_ft"].as_bool() == Some(true);
+                    let ratio = r["ratio_to_oracle"]
+                        .as_f64()
+                        .map(|x| format!(" {}", num(x)))
+                        .unwrap_or_default();
+                    let _ = write!(
+                        body,
+                        "<td class=\"{}{}\" title=\"{}\">{}{}{}</td>",
+                        verdict_class(verdict),
+                        if worse { " worse" } else { "" },
+                        esc(&format!(
+                            "{m}: {verdict}, {}/{} seeds recovered",
+                            r["recovered_seeds"], r["seeds"]
+                        )),
+                        esc(verdict),
+                        ratio,
+                        if worse { " !" } else { "" }
+                    );
+                }
+                None => body.push_str("<td>-</td>"),
+            }
         }
         body.push_str("</tr>");
-        for c in cells.iter().filter(|c| c["arm"].as_str() == Some(arm)) {
-            let index = c["index"].as_u64().unwrap_or(0);
-            let _ = write!(
-                body,
-                "<tr><td><a href=\"#cell-{index}\">{}</a></td>",
-                esc(c["label"].as_str().unwrap_or("?"))
-            );
-            let results = c["results"].as_array().cloned().unwrap_or_default();
-            for m in &methods {
-                match results.iter().find(|r| r["method"].as_str() == Some(m)) {
-                    Some(r) => {
-                        let verdict = r["verdict"].as_str().unwrap_or("");
-                        let worse = r["worse_than_no_ft"].as_bool() == Some(true);
-                        let ratio = r["ratio_to_oracle"]
-                            .as_f64()
-                            .map(|x| format!(" {}", num(x)))
-                            .unwrap_or_default();
-                        let _ = write!(
-                            body,
-                            "<td class=\"{}{}\" title=\"{}\">{}{}{}</td>",
-                            verdict_class(verdict),
-                            if worse { " worse" } else { "" },
-                            esc(&format!(
-                                "{m}: {verdict}, {}/{} seeds recovered",
-                                r["recovered_seeds"], r["seeds"]
-                            )),
-                            esc(verdict),
-                            ratio,
-                            if worse { " !" } else { "" }
-                        );
-                    }
-                    None => body.push_str("<td>-</td>"),
-                }
-            }
-            body.push_str("</tr>");
-        }
-        body.push_str("</table>\n<p class=\"note\">Each entry: verdict and post-fault MSE as a ratio to the oracle's; ! and a red frame: worse than no-FT.</p>\n");
     }
+    body.push_str("</table>\n<p class=\"note\">Each entry: verdict and post-fault MSE as a ratio to the oracle's; ! and a red frame: worse than no-FT.</p>\n");
+    Ok(())
+}
+
+/// Each cell's numbers, a row per method.
+fn cell_tables(body: &mut String, cells: &[Value]) {
     body.push_str("<h2 id=\"cells\">Cells</h2>\n");
     let fields = [
         "verdict",
@@ -720,7 +774,7 @@ fn campaign_page(dir: &Path) -> Result<String, ReportError> {
         "recover_time_mean",
         "worse_than_no_ft",
     ];
-    for c in &cells {
+    for c in cells {
         let index = c["index"].as_u64().unwrap_or(0);
         let _ = write!(
             body,
@@ -752,6 +806,10 @@ fn campaign_page(dir: &Path) -> Result<String, ReportError> {
         }
         body.push_str("</table>\n");
     }
+}
+
+/// The healthy reaching benchmark's table, if the campaign ran it.
+fn reaching_table(body: &mut String, doc: &Value) {
     if let Some(reach) = doc["reaching"].as_array().filter(|a| !a.is_empty()) {
         body.push_str("<h2>Healthy reaching benchmark</h2><table><tr><th>arm</th><th>method</th><th>belief RMSE</th><th>overshoot %</th><th>settling time (s)</th><th>not settled</th><th>steady-state error</th><th>false alarms</th></tr>");
         for r in reach {
@@ -771,16 +829,6 @@ fn campaign_page(dir: &Path) -> Result<String, ReportError> {
         }
         body.push_str("</table>\n");
     }
-    let title = format!("Campaign: {}", doc["campaign"].as_str().unwrap_or("?"));
-    let subtitle = format!(
-        "{} cells x {} methods x {} seeds | fingerprint {} | aift {}",
-        cells.len(),
-        methods.len(),
-        doc["seeds"],
-        doc["fingerprint"].as_str().unwrap_or("?"),
-        doc["aift_version"].as_str().unwrap_or("?")
-    );
-    Ok(page(&title, &subtitle, &body, &json!({"plots": []})))
 }
 
 #[cfg(test)]

@@ -25,7 +25,6 @@ pub fn bench(setup: &RunSetup, ticks: u64) -> Result<Vec<Figure>, ScenarioError>
     let sc = setup.scenario();
     let dt = sc.dt;
     let ticks = ticks.max(1);
-    let per_tick = |start: Instant| start.elapsed().as_secs_f64() * 1e6 / ticks as f64;
 
     let mut arm = setup.plant()?;
     let n = arm.n_joints();
@@ -40,7 +39,7 @@ pub fn bench(setup: &RunSetup, ticks: u64) -> Result<Vec<Figure>, ScenarioError>
     for _ in 0..ticks {
         arm.step(dt);
     }
-    let physics_us = per_tick(start);
+    let physics_us = per_tick(start, ticks);
 
     // Sensors: every channel, camera with occlusion.
     arm.set_state(&target, &vec![0.0; n]);
@@ -58,7 +57,7 @@ pub fn bench(setup: &RunSetup, ticks: u64) -> Result<Vec<Figure>, ScenarioError>
     for k in 0..ticks {
         sensors.read(arm.as_ref(), k, &mut readings);
     }
-    let sensors_us = per_tick(start);
+    let sensors_us = per_tick(start, ticks);
 
     // GP: mean and Jacobian.
     let r = layout.camera_outputs();
@@ -68,29 +67,74 @@ pub fn bench(setup: &RunSetup, ticks: u64) -> Result<Vec<Figure>, ScenarioError>
     for _ in 0..ticks {
         setup.gp.predict(black_box(&target), &mut g, &mut jac);
     }
-    let gp_us = per_tick(start);
+    let gp_us = per_tick(start, ticks);
 
-    // Controller: one belief update (GP included) and f*, on fixed readings.
+    // Controller and learner, on fixed readings.
     let nominal: Vec<f64> = super::runner::nominal_precisions(sensors.sigmas());
+    let zeros = vec![0.0; n];
+    let controller_us = time_controller(setup, &readings, &nominal, &target, &zeros, ticks);
+    let learner_us = time_learner(setup, &readings, &nominal, &target, &zeros, ticks);
+
+    // The closed loop: one whole run.
+    let result = Run::new(setup, Method::PlAlways).seed(sc.seed).execute()?;
+    let closed_loop = result.ticks_per_second();
+    let closed_us = 1e6 / closed_loop;
+
+    Ok(figures(&Timings {
+        physics_us,
+        sensors_us,
+        gp_us,
+        controller_us,
+        learner_us,
+        closed_loop,
+        closed_us,
+        dt,
+    }))
+}
+
+/// The controller stage: one belief update (GP included) and f* per tick, on fixed readings
+/// (us per tick).
+fn time_controller(
+    setup: &RunSetup,
+    readings: &Readings,
+    nominal: &[f64],
+    target: &[f64],
+    zeros: &[f64],
+    ticks: u64,
+) -> f64 {
+    let sc = setup.scenario();
+    let dt = sc.dt;
+    let layout = setup.layout;
     let observation = crate::estimation::models::GpCamera::shared(layout, setup.gp.clone());
     let mut belief = Uaic::new(sc.belief.clone(), observation, dt);
     let mut control = crate::control::Control::new(&sc.controller);
-    let zeros = vec![0.0; n];
     let start = Instant::now();
     for k in 0..ticks {
         belief.update(&EstimatorInput {
             tick: k,
-            readings: black_box(&readings),
-            precisions: &nominal,
-            applied_torques: &zeros,
+            readings: black_box(readings),
+            precisions: nominal,
+            applied_torques: zeros,
         });
-        control.step(belief.mu(), belief.mu_p(), &target, dt);
+        control.step(belief.mu(), belief.mu_p(), target, dt);
     }
-    let controller_us = per_tick(start);
+    per_tick(start, ticks)
+}
 
-    // Learner: the paper's gradient rule on every channel.
+/// The learner stage: the paper's gradient rule on every channel (us per tick).
+fn time_learner(
+    setup: &RunSetup,
+    readings: &Readings,
+    nominal: &[f64],
+    target: &[f64],
+    zeros: &[f64],
+    ticks: u64,
+) -> f64 {
+    let sc = setup.scenario();
+    let dt = sc.dt;
+    let layout = setup.layout;
     let mut learner = Gradient::new(
-        &nominal,
+        nominal,
         sc.precision.kappa_zeta,
         true,
         sc.precision.bounds(),
@@ -103,22 +147,43 @@ pub fn bench(setup: &RunSetup, ticks: u64) -> Result<Vec<Figure>, ScenarioError>
             tick: k,
             dt,
             layout: &layout,
-            readings: &readings,
+            readings,
             estimate: black_box(&estimate),
-            mu: &target,
-            mu_p: &zeros,
+            mu: target,
+            mu_p: zeros,
             covariance: None,
-            torques: &zeros,
+            torques: zeros,
         });
     }
-    let learner_us = per_tick(start);
+    per_tick(start, ticks)
+}
 
-    // The closed loop: one whole run.
-    let result = Run::new(setup, Method::PlAlways).seed(sc.seed).execute()?;
-    let closed_loop = result.ticks_per_second();
-    let closed_us = 1e6 / closed_loop;
+/// What [`bench`] measured: per-tick times (us) of each stage and of the closed loop, and the
+/// closed loop's ticks per second.
+struct Timings {
+    physics_us: f64,
+    sensors_us: f64,
+    gp_us: f64,
+    controller_us: f64,
+    learner_us: f64,
+    closed_loop: f64,
+    closed_us: f64,
+    dt: f64,
+}
 
-    Ok(vec![
+/// The figures [`bench`] reports.
+fn figures(t: &Timings) -> Vec<Figure> {
+    let Timings {
+        physics_us,
+        sensors_us,
+        gp_us,
+        controller_us,
+        learner_us,
+        closed_loop,
+        closed_us,
+        dt,
+    } = *t;
+    vec![
         Figure {
             name: "physics_tick_us",
             value: physics_us,
@@ -169,5 +234,10 @@ pub fn bench(setup: &RunSetup, ticks: u64) -> Result<Vec<Figure>, ScenarioError>
             value: closed_loop * dt,
             unit: "x",
         },
-    ])
+    ]
+}
+
+/// Microseconds per tick since `start`, over `ticks` ticks.
+fn per_tick(start: Instant, ticks: u64) -> f64 {
+    start.elapsed().as_secs_f64() * 1e6 / ticks as f64
 }

@@ -133,8 +133,41 @@ pub fn init_scenario(urdf: &Path, options: &InitOptions) -> Result<String, Scena
     let end_effector = EndEffector::new(&model, &ee, [0.0; 3])?;
     let model = Arc::new(model);
     let n = model.joints.len();
+    let poses = start_and_targets(&model);
+    let gains = gains_from_dynamics(&model, &poses);
+    let view = place_camera(&model, &end_effector, &poses);
+    let scenario = scenario_value(options, &model, &ee, &poses, &gains, view.config);
+    // What init writes must load: checked against the arm before it is written.
+    let layout = crate::sensors::ChannelLayout::new(n, scenario.camera.model);
+    scenario.validate(&layout, urdf)?;
+    let notes = Notes {
+        urdf,
+        n,
+        start: if poses.notes.is_empty() {
+            String::new()
+        } else {
+            format!(" ({})", poses.notes.join("; "))
+        },
+        distance: view.distance,
+        hidden: view.hidden,
+        m_max: &gains.m_max,
+        g_max: &gains.g_max,
+    };
+    Ok(render(&scenario, &notes))
+}
 
-    // Start and targets.
+/// The start and the two targets, and which joints start mid-range.
+struct Poses {
+    q0: Vec<f64>,
+    t1: Vec<f64>,
+    t2: Vec<f64>,
+    notes: Vec<String>,
+}
+
+/// Start: each joint at 0, or mid-range when 0 is within 10 % of a limit; two targets inside the
+/// limits (+-0.3 rad, alternating per joint, moved inward where the range is narrow).
+fn start_and_targets(model: &ArmModel) -> Poses {
+    let n = model.joints.len();
     let mut q0 = vec![0.0; n];
     let mut t1 = vec![0.0; n];
     let mut t2 = vec![0.0; n];
@@ -159,15 +192,32 @@ pub fn init_scenario(urdf: &Path, options: &InitOptions) -> Result<String, Scena
             notes.push(format!("joint {} starts mid-range", j.name));
         }
     }
+    Poses { q0, t1, t2, notes }
+}
 
-    // Dynamics at the start and the targets (gravity along -z, the scenario's default).
+/// The PID gains, integral limits and state prior's acceleration bound, with the largest row sum
+/// of |M| and gravity torque per joint they were derived from.
+struct Gains {
+    kp: Vec<f64>,
+    kd: Vec<f64>,
+    ki: Vec<f64>,
+    ilim: Vec<f64>,
+    m_max: Vec<f64>,
+    g_max: Vec<f64>,
+    acceleration_bound: f64,
+}
+
+/// Gains from the arm's dynamics at the start and the targets (gravity along -z, the scenario's
+/// default), as the module documentation derives them.
+fn gains_from_dynamics(model: &Arc<ArmModel>, poses: &Poses) -> Gains {
+    let n = model.joints.len();
     let mut dynamics = Dynamics::new(model.clone(), [0.0, 0.0, -9.81]);
     // Per joint: the largest diagonal inertia, the largest row sum of |M| and the largest
     // gravity torque seen.
     let mut m_diag = vec![0.0f64; n];
     let mut m_max = vec![0.0f64; n];
     let mut g_max = vec![0.0f64; n];
-    for q in [&q0, &t1, &t2] {
+    for q in [&poses.q0, &poses.t1, &poses.t2] {
         let (m, g) = dynamics.mass_matrix_and_gravity(q);
         for i in 0..n {
             m_diag[i] = m_diag[i].max(m[(i, i)]);
@@ -199,9 +249,34 @@ pub fn init_scenario(urdf: &Path, options: &InitOptions) -> Result<String, Scena
         accel = accel.max(kp[i] * STEP / m_diag[i].max(1e-6));
     }
     let acceleration_bound = accel.max(crate::estimation::uaic::DEFAULT_ACCELERATION_BOUND);
+    Gains {
+        kp,
+        kd,
+        ki,
+        ilim,
+        m_max,
+        g_max,
+        acceleration_bound,
+    }
+}
 
+/// The camera: its settings, its distance from the centroid of the sampled end-effector
+/// positions, and how many of those samples it cannot see.
+struct CameraPlacement {
+    config: CameraConfig,
+    distance: f64,
+    hidden: usize,
+}
+
+/// A pinhole looking along the axis in which the end effector moves least over the training box,
+/// from 3 x the workspace's extent; the side that sees more of the samples.
+fn place_camera(
+    model: &Arc<ArmModel>,
+    end_effector: &EndEffector,
+    poses: &Poses,
+) -> CameraPlacement {
     // The GP box and the camera.
-    let box_ = gp::derive_box(&[q0.clone(), t1.clone(), t2.clone()], 0.3);
+    let box_ = gp::derive_box(&[poses.q0.clone(), poses.t1.clone(), poses.t2.clone()], 0.3);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
     let samples = gp::latin_hypercube(&box_, 200, &mut rng);
     let mut arm = Kinematics::new(model.clone());
@@ -246,7 +321,7 @@ pub fn init_scenario(urdf: &Path, options: &InitOptions) -> Result<String, Scena
             .iter()
             .filter(|q| {
                 arm.set(q);
-                camera.observe(&arm, &end_effector, &mut image).is_err()
+                camera.observe(&arm, end_effector, &mut image).is_err()
             })
             .count();
         if best.as_ref().is_none_or(|(h, _)| hidden < *h) {
@@ -254,19 +329,37 @@ pub fn init_scenario(urdf: &Path, options: &InitOptions) -> Result<String, Scena
         }
     }
     let (hidden, camera) = best.expect("two sides tried");
+    CameraPlacement {
+        config: camera,
+        distance,
+        hidden,
+    }
+}
+
+/// The scenario value: the derived start, targets, gains, camera and GP size; every other
+/// section at its default.
+fn scenario_value(
+    options: &InitOptions,
+    model: &ArmModel,
+    ee: &str,
+    poses: &Poses,
+    gains: &Gains,
+    camera: CameraConfig,
+) -> Scenario {
+    let n = model.joints.len();
     let gp_points = (100 * n + 100).min(600);
 
     let targets = vec![
         Target {
             time: 0.0,
-            q: rounded(&t1),
+            q: rounded(&poses.t1),
         },
         Target {
             time: 7.5,
-            q: rounded(&t2),
+            q: rounded(&poses.t2),
         },
     ];
-    let scenario = Scenario {
+    Scenario {
         name: options.name.clone(),
         description: format!(
             "Healthy reaching on {} (generated by aift init)",
@@ -278,7 +371,7 @@ pub fn init_scenario(urdf: &Path, options: &InitOptions) -> Result<String, Scena
         record_every: 1,
         robot: RobotConfig {
             urdf: options.urdf_in_scenario.clone().into(),
-            ee_link: ee.clone(),
+            ee_link: ee.to_string(),
             ee_offset: [0.0; 3],
             gravity: [0.0, 0.0, -9.81],
             balance_inertia: options.balance_inertia,
@@ -286,7 +379,7 @@ pub fn init_scenario(urdf: &Path, options: &InitOptions) -> Result<String, Scena
         plant: Default::default(),
         model: Default::default(),
         initial: InitialState {
-            q: rounded(&q0),
+            q: rounded(&poses.q0),
             qd: None,
         },
         targets,
@@ -302,15 +395,15 @@ pub fn init_scenario(urdf: &Path, options: &InitOptions) -> Result<String, Scena
             ..GpConfig::default()
         },
         belief: UaicConfig {
-            acceleration_bound: round4(acceleration_bound),
+            acceleration_bound: round4(gains.acceleration_bound),
             ..UaicConfig::default()
         },
         controller: ControlConfig {
             gains: PidGains {
-                kp: rounded(&kp),
-                kd: rounded(&kd),
-                ki: rounded(&ki),
-                integral_limit: rounded(&ilim),
+                kp: rounded(&gains.kp),
+                kd: rounded(&gains.kd),
+                ki: rounded(&gains.ki),
+                integral_limit: rounded(&gains.ilim),
             },
             ..ControlConfig::default()
         },
@@ -319,24 +412,7 @@ pub fn init_scenario(urdf: &Path, options: &InitOptions) -> Result<String, Scena
         kalman: Default::default(),
         hybrid: Default::default(),
         faults: Vec::new(),
-    };
-    // What init writes must load: checked against the arm before it is written.
-    let layout = crate::sensors::ChannelLayout::new(n, scenario.camera.model);
-    scenario.validate(&layout, urdf)?;
-    let notes = Notes {
-        urdf,
-        n,
-        start: if notes.is_empty() {
-            String::new()
-        } else {
-            format!(" ({})", notes.join("; "))
-        },
-        distance,
-        hidden,
-        m_max: &m_max,
-        g_max: &g_max,
-    };
-    Ok(render(&scenario, &notes))
+    }
 }
 
 /// Numbers to about 4 significant digits, as the file shows them.
@@ -379,6 +455,15 @@ fn render(scenario: &Scenario, notes: &Notes<'_>) -> String {
     expand_tables(doc.as_table_mut());
     let defaults = default_sections();
     prune(doc.as_table_mut(), &defaults, "");
+    // A healthy task has no faults; an empty `faults = []` would make the `[[faults]]` table a
+    // user appends a duplicate key, so the key is left out and an example closes the file.
+    let no_faults = doc
+        .get("faults")
+        .and_then(toml_edit::Item::as_array)
+        .is_some_and(toml_edit::Array::is_empty);
+    if no_faults {
+        doc.remove("faults");
+    }
     let comment = |doc: &mut toml_edit::DocumentMut, section: &str, text: String| {
         if let Some(t) = doc.get_mut(section).and_then(toml_edit::Item::as_table_mut) {
             t.decor_mut().set_prefix(format!("\n{text}"));
@@ -451,8 +536,22 @@ fn render(scenario: &Scenario, notes: &Notes<'_>) -> String {
             fmt_list(notes.g_max)
         ),
     );
-    doc.to_string()
+    let mut text = doc.to_string();
+    if no_faults {
+        text.push_str(FAULT_EXAMPLE);
+    }
+    text
 }
+
+/// The closing comment of a written file: how to add a fault (docs/method.md, "Sensors").
+const FAULT_EXAMPLE: &str = "\n# Faults: append one table per fault, for example a frozen encoder from 4 s to 6 s\n\
+# (a channel such as enc1 or tach2, a group enc, tach or cam, or a list; kinds freeze, bias,\n\
+# drift, gain, noise, dropout, stuck, spikes, with their parameters; `end` optional).\n\
+# [[faults]]\n\
+# channel = \"enc1\"\n\
+# kind = \"freeze\"\n\
+# start = 4.0\n\
+# end = 6.0\n";
 
 /// Each defaulted section of a scenario as TOML (the tables a written file may leave out).
 fn default_sections() -> toml_edit::Table {

@@ -246,18 +246,7 @@ impl RunMetrics {
         let dt = self.dt;
         let count = self.ticks_run.max(1) as f64;
         let mse_per_joint: Vec<f64> = self.sq.iter().map(|s| s / count).collect();
-        let mse_post_fault_per_joint = self.first_fault.map(|_| {
-            self.sq_post
-                .iter()
-                .map(|s| {
-                    if self.post_count > 0 {
-                        s / self.post_count as f64
-                    } else {
-                        f64::NAN
-                    }
-                })
-                .collect()
-        });
+        let mse_post_fault_per_joint = self.mse_post_fault();
         let mean_over = |joints: &[usize]| {
             (!joints.is_empty()).then(|| {
                 joints.iter().map(|&j| mse_per_joint[j]).sum::<f64>() / joints.len() as f64
@@ -273,29 +262,7 @@ impl RunMetrics {
             .fold(0.0f64, |a, b| if b.is_nan() { f64::NAN } else { a.max(*b) });
 
         // Detections: the detector's alarms, or health crossings.
-        let (detection_kind, events): (&'static str, Vec<(u64, Vec<usize>)>) = match detection {
-            Some(d) => (
-                "detector",
-                d.alarms
-                    .iter()
-                    .map(|a| (a.tick, a.channels.clone()))
-                    .collect(),
-            ),
-            None => (
-                "health<0.1",
-                self.health_events
-                    .iter()
-                    .map(|&(k, c)| (k, vec![c]))
-                    .collect(),
-            ),
-        };
-        let names = |channels: &[usize]| {
-            channels
-                .iter()
-                .map(|&c| self.layout.name(c))
-                .collect::<Vec<_>>()
-                .join("+")
-        };
+        let (detection_kind, events) = self.detection_events(detection);
         let first = events.first();
         let detected_at = first.map(|(k, _)| *k as f64 * dt);
         let false_alarm = match (first, self.first_fault) {
@@ -303,42 +270,12 @@ impl RunMetrics {
             (Some(_), None) => true,
             (None, _) => false,
         };
-        let isolated_channel = first.map(|(_, c)| names(c)).filter(|s| !s.is_empty());
+        let isolated_channel = first.map(|(_, c)| self.names(c)).filter(|s| !s.is_empty());
         let isolation_correct = first
             .filter(|(_, c)| !c.is_empty() && !self.faulty_channels.is_empty())
             .map(|(_, c)| c.iter().all(|c| self.faulty_channels.contains(c)));
-        let grace = (FALSE_ALARM_GRACE / dt).round() as u64;
-        let false_alarms = events
-            .iter()
-            .filter(|(k, _)| {
-                !self.faults.iter().any(|f| {
-                    *k >= f.start_tick(dt) && f.end_tick(dt).is_none_or(|e| *k < e + grace)
-                })
-            })
-            .count();
-        let faults = self
-            .faults
-            .iter()
-            .zip(&self.windows)
-            .map(|(f, w)| {
-                let hit = events
-                    .iter()
-                    .find(|(k, _)| *k >= w.start && w.end.is_none_or(|e| *k < e));
-                FaultOutcome {
-                    label: f.label.clone(),
-                    kind: f.kind.name(),
-                    start: f.start,
-                    end: f.end,
-                    joints: fault_joints(&self.layout, f),
-                    detected_at: hit.map(|(k, _)| *k as f64 * dt),
-                    delay: hit.map(|(k, _)| (*k - w.start) as f64 * dt),
-                    isolated: hit.map(|(_, c)| names(c)),
-                    isolation_correct: hit.map(|(_, c)| c.iter().all(|c| f.hits(*c))),
-                    mse_during: (w.count > 0)
-                        .then(|| w.sq / (w.count as f64 * w.joints.len() as f64)),
-                }
-            })
-            .collect();
+        let false_alarms = self.false_alarms(&events);
+        let faults = self.fault_outcomes(&events);
         let detections = events
             .iter()
             .take(MAX_DETECTIONS)
@@ -373,6 +310,96 @@ impl RunMetrics {
             channels: self.layout.names(),
             wall_seconds,
         }
+    }
+
+    /// Each joint's MSE from the first fault's start (None without a fault; NaN when the run
+    /// ended before it).
+    fn mse_post_fault(&self) -> Option<Vec<f64>> {
+        self.first_fault.map(|_| {
+            self.sq_post
+                .iter()
+                .map(|s| {
+                    if self.post_count > 0 {
+                        s / self.post_count as f64
+                    } else {
+                        f64::NAN
+                    }
+                })
+                .collect()
+        })
+    }
+
+    /// The detections: the detector's alarms, or health crossings (methods without a detector).
+    fn detection_events(
+        &self,
+        detection: Option<&Detection>,
+    ) -> (&'static str, Vec<(u64, Vec<usize>)>) {
+        match detection {
+            Some(d) => (
+                "detector",
+                d.alarms
+                    .iter()
+                    .map(|a| (a.tick, a.channels.clone()))
+                    .collect(),
+            ),
+            None => (
+                "health<0.1",
+                self.health_events
+                    .iter()
+                    .map(|&(k, c)| (k, vec![c]))
+                    .collect(),
+            ),
+        }
+    }
+
+    /// Channel names joined by `+`.
+    fn names(&self, channels: &[usize]) -> String {
+        channels
+            .iter()
+            .map(|&c| self.layout.name(c))
+            .collect::<Vec<_>>()
+            .join("+")
+    }
+
+    /// Detections while no fault acts (nor within [`FALSE_ALARM_GRACE`] after one ended).
+    fn false_alarms(&self, events: &[(u64, Vec<usize>)]) -> usize {
+        let dt = self.dt;
+        let grace = (FALSE_ALARM_GRACE / dt).round() as u64;
+        events
+            .iter()
+            .filter(|(k, _)| {
+                !self.faults.iter().any(|f| {
+                    *k >= f.start_tick(dt) && f.end_tick(dt).is_none_or(|e| *k < e + grace)
+                })
+            })
+            .count()
+    }
+
+    /// How each fault went: the first detection within it, its isolation, the MSE while it acts.
+    fn fault_outcomes(&self, events: &[(u64, Vec<usize>)]) -> Vec<FaultOutcome> {
+        let dt = self.dt;
+        self.faults
+            .iter()
+            .zip(&self.windows)
+            .map(|(f, w)| {
+                let hit = events
+                    .iter()
+                    .find(|(k, _)| *k >= w.start && w.end.is_none_or(|e| *k < e));
+                FaultOutcome {
+                    label: f.label.clone(),
+                    kind: f.kind.name(),
+                    start: f.start,
+                    end: f.end,
+                    joints: fault_joints(&self.layout, f),
+                    detected_at: hit.map(|(k, _)| *k as f64 * dt),
+                    delay: hit.map(|(k, _)| (*k - w.start) as f64 * dt),
+                    isolated: hit.map(|(_, c)| self.names(c)),
+                    isolation_correct: hit.map(|(_, c)| c.iter().all(|c| f.hits(*c))),
+                    mse_during: (w.count > 0)
+                        .then(|| w.sq / (w.count as f64 * w.joints.len() as f64)),
+                }
+            })
+            .collect()
     }
 }
 

@@ -11,6 +11,7 @@ use aift::fsio::{FsError, OutputKind, Staged};
 use aift::plant::{self, Engine, PlantSettings};
 use aift::precision::Calibration;
 use aift::report::{self, ReportError, run_files, table_files};
+use aift::scenario::campaign::{Campaign, CampaignRecords, CampaignRun, Shard};
 use aift::scenario::{self, LoadedScenario, Method, RunSetup, calibrate, table};
 
 use crate::args::{
@@ -141,7 +142,7 @@ fn default_campaign_path() -> PathBuf {
 }
 
 fn campaign(args: CampaignArgs) -> Result<(), Failure> {
-    use aift::scenario::campaign::{Campaign, Shard, run_campaign};
+    use aift::scenario::campaign::run_campaign;
     let start = std::time::Instant::now();
     let path = args.campaign.clone().unwrap_or_else(default_campaign_path);
     if args.campaign.is_none() && !path.is_file() {
@@ -171,34 +172,8 @@ fn campaign(args: CampaignArgs) -> Result<(), Failure> {
     // --set applies to every arm's template last; the fingerprint covers each resolved
     // scenario, so shards with other overrides do not merge.
     let campaign = Campaign::from_config(config, &path, &args.set).map_err(bad_input)?;
-    let jobs = campaign.jobs().len() + campaign.reaching_tasks().len();
-    eprintln!(
-        "{} cells x {} methods x {} seeds = {} runs{}{}",
-        campaign.cells.len(),
-        campaign.methods.len(),
-        campaign.config.seeds,
-        campaign.jobs().len(),
-        if campaign.config.reaching.is_some() {
-            format!(", plus {} reaching tasks", campaign.reaching_tasks().len())
-        } else {
-            String::new()
-        },
-        if shard == Shard::WHOLE {
-            String::new()
-        } else {
-            format!("; shard {}/{} of {jobs} jobs", shard.index, shard.count)
-        }
-    );
-    let bar = indicatif::ProgressBar::new(0);
-    if !std::io::IsTerminal::is_terminal(&std::io::stderr()) {
-        bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
-    }
-    bar.set_style(
-        indicatif::ProgressStyle::with_template(
-            "{bar:40} {pos}/{len} jobs, {elapsed} (time left {eta})",
-        )
-        .expect("valid template"),
-    );
+    describe_campaign(&campaign, shard);
+    let bar = progress_bar();
     let progress = |done: usize, total: usize| {
         bar.set_length(total as u64);
         bar.set_position(done as u64);
@@ -217,26 +192,7 @@ fn campaign(args: CampaignArgs) -> Result<(), Failure> {
         .commit()
         .map_err(|e| report_failure(ReportError::File(e)))?;
     if shard == Shard::WHOLE {
-        let (_, methods) = aift::scenario::campaign::summarise(&campaign, &records.runs);
-        say!(
-            args.json,
-            "| method | recovered | degraded | failed | diverged | worse than no-FT | recovers where the oracle does |"
-        );
-        say!(args.json, "|---|---|---|---|---|---|---|");
-        for m in methods {
-            say!(
-                args.json,
-                "| {} | {} | {} | {} | {} | {} | {}/{} |",
-                m.method,
-                m.recovered,
-                m.degraded,
-                m.failed,
-                m.diverged,
-                m.worse_than_no_ft,
-                m.recovers_where_oracle_does,
-                m.oracle_recovers
-            );
-        }
+        print_method_table(args.json, &campaign, &records.runs);
     }
     say!(
         args.json,
@@ -247,19 +203,86 @@ fn campaign(args: CampaignArgs) -> Result<(), Failure> {
         dir.display()
     );
     if args.json {
-        if shard == Shard::WHOLE {
-            print_json_file(&dir.join(report::campaign_files::CAMPAIGN_JSON))?;
+        print_campaign_json(&dir, shard, &records)?;
+    }
+    Ok(())
+}
+
+/// What a campaign (or shard) will run, on stderr.
+fn describe_campaign(campaign: &Campaign, shard: Shard) {
+    let jobs = campaign.jobs().len() + campaign.reaching_tasks().len();
+    eprintln!(
+        "{} cells x {} methods x {} seeds = {} runs{}{}",
+        campaign.cells.len(),
+        campaign.methods.len(),
+        campaign.config.seeds,
+        campaign.jobs().len(),
+        if campaign.config.reaching.is_some() {
+            format!(", plus {} reaching tasks", campaign.reaching_tasks().len())
         } else {
-            let doc = serde_json::json!({
-                "format_version": aift::scenario::campaign::CAMPAIGN_FORMAT,
-                "campaign": records.campaign,
-                "fingerprint": records.fingerprint,
-                "shard": format!("{}/{}", shard.index, shard.count),
-                "runs": records.runs.len() + records.reaching.len(),
-                "records": dir.join(report::campaign_files::RECORDS),
-            });
-            println!("{doc}");
+            String::new()
+        },
+        if shard == Shard::WHOLE {
+            String::new()
+        } else {
+            format!("; shard {}/{} of {jobs} jobs", shard.index, shard.count)
         }
+    );
+}
+
+/// The campaign's progress bar on stderr (hidden when stderr is not a terminal).
+fn progress_bar() -> indicatif::ProgressBar {
+    let bar = indicatif::ProgressBar::new(0);
+    if !std::io::IsTerminal::is_terminal(&std::io::stderr()) {
+        bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+    }
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{bar:40} {pos}/{len} jobs, {elapsed} (time left {eta})",
+        )
+        .expect("valid template"),
+    );
+    bar
+}
+
+/// The per-method totals of a whole campaign, as a Markdown table.
+fn print_method_table(json: bool, campaign: &Campaign, runs: &[CampaignRun]) {
+    let (_, methods) = aift::scenario::campaign::summarise(campaign, runs);
+    say!(
+        json,
+        "| method | recovered | degraded | failed | diverged | worse than no-FT | recovers where the oracle does |"
+    );
+    say!(json, "|---|---|---|---|---|---|---|");
+    for m in methods {
+        say!(
+            json,
+            "| {} | {} | {} | {} | {} | {} | {}/{} |",
+            m.method,
+            m.recovered,
+            m.degraded,
+            m.failed,
+            m.diverged,
+            m.worse_than_no_ft,
+            m.recovers_where_oracle_does,
+            m.oracle_recovers
+        );
+    }
+}
+
+/// The JSON document of `campaign --json`: campaign.json, or for a shard what it holds.
+fn print_campaign_json(dir: &Path, shard: Shard, records: &CampaignRecords) -> Result<(), Failure> {
+    if shard == Shard::WHOLE {
+        print_json_file(&dir.join(report::campaign_files::CAMPAIGN_JSON))?;
+    } else {
+        let doc = serde_json::json!({
+            "format_version": aift::scenario::campaign::CAMPAIGN_FORMAT,
+            "campaign": records.campaign,
+            "fingerprint": records.fingerprint,
+            "shard": format!("{}/{}", shard.index, shard.count),
+            "runs": records.runs.len() + records.reaching.len(),
+            "records": dir.join(report::campaign_files::RECORDS),
+        });
+        println!("{doc}");
     }
     Ok(())
 }
@@ -447,7 +470,6 @@ fn run(args: RunArgs) -> Result<(), Failure> {
         .calibration(calibration.as_deref());
     let result = run_files::run_staged(&staged, run).map_err(report_failure)?;
     staged.commit().map_err(file_failure)?;
-    let fmt_opt = |v: Option<f64>| v.map_or("n/a".to_string(), |x| format!("{x:.3e}"));
     say!(
         args.json,
         "scenario {} | method {} | seed {} | GP {}",
@@ -456,17 +478,39 @@ fn run(args: RunArgs) -> Result<(), Failure> {
         seed,
         describe_gp(&setup)
     );
-    say!(args.json, "outcome: {}", result.outcome.name());
+    print_run_result(args.json, &setup, &result);
+    say!(
+        args.json,
+        "wrote {}/: {}, {}, {}, plots {}, {}, {}, {}",
+        dir.display(),
+        run_files::TRAJECTORY,
+        run_files::SUMMARY,
+        run_files::RESOLVED,
+        run_files::PLOT_JOINTS,
+        run_files::PLOT_HEALTH,
+        run_files::PLOT_DETECTOR,
+        run_files::PLOT_FREE_ENERGY
+    );
+    if args.json {
+        print_json_file(&dir.join(run_files::SUMMARY))?;
+    }
+    Ok(())
+}
+
+/// A run's outcome, errors, detections, faults and speed, for people.
+fn print_run_result(json: bool, setup: &RunSetup, result: &aift::scenario::RunResult) {
+    let fmt_opt = |v: Option<f64>| v.map_or("n/a".to_string(), |x| format!("{x:.3e}"));
+    say!(json, "outcome: {}", result.outcome.name());
     if let Some((tick, reason)) = result.outcome.early_end() {
         say!(
-            args.json,
+            json,
             "  {} at t = {:.3} s: {reason}",
             result.outcome.name(),
             tick as f64 * setup.scenario().dt
         );
     }
     say!(
-        args.json,
+        json,
         "belief MSE per joint: {}",
         result
             .mse_per_joint
@@ -476,13 +520,13 @@ fn run(args: RunArgs) -> Result<(), Failure> {
             .join(", ")
     );
     say!(
-        args.json,
+        json,
         "faulty-joint MSE: {} | healthy-joint MSE: {}",
         fmt_opt(result.mse_faulty),
         fmt_opt(result.mse_healthy)
     );
     say!(
-        args.json,
+        json,
         "final error per joint (rad): {}",
         result
             .final_error_per_joint
@@ -493,16 +537,16 @@ fn run(args: RunArgs) -> Result<(), Failure> {
     );
     match result.detected_at {
         Some(t) => say!(
-            args.json,
+            json,
             "detected at {t:.3} s ({}), isolated {}",
             result.detection_kind,
             result.isolated_channel.clone().unwrap_or_default()
         ),
-        None => say!(args.json, "no detection"),
+        None => say!(json, "no detection"),
     }
     for (i, f) in result.faults.iter().enumerate() {
         say!(
-            args.json,
+            json,
             "fault {} ({} {} from {} s): {}",
             i + 1,
             f.label,
@@ -522,27 +566,11 @@ fn run(args: RunArgs) -> Result<(), Failure> {
         );
     }
     say!(
-        args.json,
+        json,
         "speed: {:.0} ticks/s ({:.1}x real time)",
         result.ticks_per_second(),
         result.ticks_per_second() * setup.scenario().dt
     );
-    say!(
-        args.json,
-        "wrote {}/: {}, {}, {}, plots {}, {}, {}, {}",
-        dir.display(),
-        run_files::TRAJECTORY,
-        run_files::SUMMARY,
-        run_files::RESOLVED,
-        run_files::PLOT_JOINTS,
-        run_files::PLOT_HEALTH,
-        run_files::PLOT_DETECTOR,
-        run_files::PLOT_FREE_ENERGY
-    );
-    if args.json {
-        print_json_file(&dir.join(run_files::SUMMARY))?;
-    }
-    Ok(())
 }
 
 /// Parses a method list; repeats are refused (each row would claim the seeds twice).
@@ -804,42 +832,8 @@ fn check_positive(name: &str, value: f64) -> Result<(), Failure> {
 }
 
 fn simulate(args: SimulateArgs) -> Result<(), Failure> {
-    check_positive("duration", args.duration)?;
-    check_positive("dt", args.dt)?;
-    if args.duration / args.dt > aift::scenario::MAX_TICKS as f64 {
-        return Err(bad_input(anyhow!(
-            "--duration / --dt = {} steps; more than {} is refused",
-            args.duration / args.dt,
-            aift::scenario::MAX_TICKS
-        )));
-    }
-    if args.dt > 0.1 {
-        return Err(bad_input(anyhow!("--dt = {} must be <= 0.1 s", args.dt)));
-    }
-    if args.dt > args.duration {
-        return Err(bad_input(anyhow!(
-            "--dt = {} is longer than --duration = {}",
-            args.dt,
-            args.duration
-        )));
-    }
-    let mut settings = PlantSettings::default();
-    if let crate::args::EngineArg::Articulated = args.engine {
-        settings.engine = Engine::Articulated;
-    }
-    if let Some(it) = args.iterations {
-        let max = plant::MAX_SOLVER_ITERATIONS.min(plant::MAX_SUBSTEPS);
-        if !(1..=max).contains(&it) {
-            return Err(bad_input(anyhow!("--iterations must be in 1..={max}")));
-        }
-        settings.rapier.solver_iterations = it;
-        settings.articulated.substeps = it;
-        if settings.engine == Engine::Rapier {
-            settings.articulated = Default::default();
-        } else {
-            settings.rapier = Default::default();
-        }
-    }
+    check_duration_and_dt(&args)?;
+    let settings = simulate_settings(&args)?;
     let staged = stage(&args.out, OutputKind::File, true)?;
     let model = arm::load_urdf_with(
         &args.urdf,
@@ -879,27 +873,7 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
         args.duration,
         args.dt,
     );
-    if let Some(bad) = samples.iter().find(|s| {
-        s.q.iter()
-            .chain(&s.qd)
-            .any(|v| !v.is_finite() || v.abs() > 1e6)
-    }) {
-        return Err(bad_input(anyhow!(
-            "the simulation blew up at t = {} s (a joint state beyond 1e6); nothing written. \
-             Try a smaller --dt or more --iterations",
-            bad.t
-        )));
-    }
-    let rows: Vec<Vec<f64>> = samples
-        .iter()
-        .map(|s| {
-            let mut row = vec![s.t];
-            row.extend(&s.q);
-            row.extend(&s.qd);
-            row.extend(s.ee);
-            row
-        })
-        .collect();
+    let rows = open_loop_rows(&samples)?;
     let text = report::csv_text(&plant::open_loop_header(n), rows.iter().map(Vec::as_slice));
     std::fs::write(staged.path(), text)
         .with_context(|| format!("writing {}", args.out.display()))
@@ -914,4 +888,76 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
         args.out.display()
     );
     Ok(())
+}
+
+/// `simulate`'s duration and time step: positive, at most 0.1 s per step, a bounded number of
+/// steps.
+fn check_duration_and_dt(args: &SimulateArgs) -> Result<(), Failure> {
+    check_positive("duration", args.duration)?;
+    check_positive("dt", args.dt)?;
+    if args.duration / args.dt > aift::scenario::MAX_TICKS as f64 {
+        return Err(bad_input(anyhow!(
+            "--duration / --dt = {} steps; more than {} is refused",
+            args.duration / args.dt,
+            aift::scenario::MAX_TICKS
+        )));
+    }
+    if args.dt > 0.1 {
+        return Err(bad_input(anyhow!("--dt = {} must be <= 0.1 s", args.dt)));
+    }
+    if args.dt > args.duration {
+        return Err(bad_input(anyhow!(
+            "--dt = {} is longer than --duration = {}",
+            args.dt,
+            args.duration
+        )));
+    }
+    Ok(())
+}
+
+/// The plant settings `--engine` and `--iterations` ask for.
+fn simulate_settings(args: &SimulateArgs) -> Result<PlantSettings, Failure> {
+    let mut settings = PlantSettings::default();
+    if let crate::args::EngineArg::Articulated = args.engine {
+        settings.engine = Engine::Articulated;
+    }
+    if let Some(it) = args.iterations {
+        let max = plant::MAX_SOLVER_ITERATIONS.min(plant::MAX_SUBSTEPS);
+        if !(1..=max).contains(&it) {
+            return Err(bad_input(anyhow!("--iterations must be in 1..={max}")));
+        }
+        settings.rapier.solver_iterations = it;
+        settings.articulated.substeps = it;
+        if settings.engine == Engine::Rapier {
+            settings.articulated = Default::default();
+        } else {
+            settings.rapier = Default::default();
+        }
+    }
+    Ok(settings)
+}
+
+/// The rows of `simulate`'s CSV (t, q, qd, end effector); an error if the state blew up.
+fn open_loop_rows(samples: &[plant::OpenLoopSample]) -> Result<Vec<Vec<f64>>, Failure> {
+    if let Some(bad) = samples.iter().find(|s| {
+        s.q.iter()
+            .chain(&s.qd)
+            .any(|v| !v.is_finite() || v.abs() > 1e6)
+    }) {
+        return Err(bad_input(anyhow!(
+            "the simulation blew up at t = {} s (a joint state beyond 1e6); nothing written. \
+             Try a smaller --dt or more --iterations",
+            bad.t
+        )));
+    }
+    Ok(samples
+        .iter()
+        .map(|s| {
+            let mut row = vec![s.t];
+            row.extend(&s.q);
+            row.extend(&s.qd);
+            row.extend(s.ee);
+            row
+        })
+        .collect())
 }

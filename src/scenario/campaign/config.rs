@@ -1,0 +1,316 @@
+//! The campaign file: its arms, fault kinds and onsets, verdict thresholds and the reaching
+//! benchmark's settings, and its loading.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::fsio;
+use crate::scenario::{Method, ScenarioError};
+use crate::sensors::{FaultKind, FaultSpec};
+
+fn default_seeds() -> usize {
+    10
+}
+
+fn yes() -> bool {
+    true
+}
+
+/// When a cell's outcome counts as recovered, degraded or failed.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct VerdictConfig {
+    /// Recovered: every joint's final error within this (rad).
+    pub tolerance: f64,
+    /// Degraded: within this (rad); beyond it, or a runaway, failed.
+    pub degraded: f64,
+    /// Runaway: a joint this far (rad) from its target at the end, or at a joint limit.
+    pub runaway: f64,
+}
+
+impl Default for VerdictConfig {
+    fn default() -> Self {
+        Self {
+            tolerance: 0.02,
+            degraded: 0.1,
+            runaway: 1.0,
+        }
+    }
+}
+
+/// When faults start.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct OnsetConfig {
+    /// Fault start of `moving` cells (s).
+    pub moving: f64,
+    /// Fault start of `rest` and `rest-then-motion` cells (s).
+    pub rest: f64,
+}
+
+impl Default for OnsetConfig {
+    fn default() -> Self {
+        Self {
+            moving: 8.0,
+            rest: 5.0,
+        }
+    }
+}
+
+/// When a fault starts relative to the task's motion.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Onset {
+    Moving,
+    Rest,
+    RestThenMotion,
+}
+
+impl Onset {
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Moving => "moving",
+            Self::Rest => "rest",
+            Self::RestThenMotion => "rest-then-motion",
+        }
+    }
+}
+
+fn moving_only() -> Vec<Onset> {
+    vec![Onset::Moving]
+}
+
+/// A size per sensor group (encoder rad, tachometer rad/s, camera m).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GroupSizes {
+    pub enc: f64,
+    pub tach: f64,
+    pub cam: f64,
+}
+
+impl GroupSizes {
+    fn for_channel(&self, channel: &str) -> f64 {
+        if channel.starts_with("enc") {
+            self.enc
+        } else if channel.starts_with("tach") {
+            self.tach
+        } else {
+            self.cam
+        }
+    }
+}
+
+/// A fault kind of the grid, with its parameters (per sensor group where they have units) and
+/// the onsets it is run at.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
+pub enum CampaignKind {
+    Freeze {
+        #[serde(default = "moving_only")]
+        onsets: Vec<Onset>,
+    },
+    Bias {
+        offset: GroupSizes,
+        #[serde(default = "moving_only")]
+        onsets: Vec<Onset>,
+    },
+    Drift {
+        rate: GroupSizes,
+        #[serde(default = "moving_only")]
+        onsets: Vec<Onset>,
+    },
+    Gain {
+        factor: f64,
+        #[serde(default = "moving_only")]
+        onsets: Vec<Onset>,
+    },
+    Noise {
+        factor: f64,
+        #[serde(default = "moving_only")]
+        onsets: Vec<Onset>,
+    },
+    Dropout {
+        #[serde(default = "moving_only")]
+        onsets: Vec<Onset>,
+    },
+    Stuck {
+        value: GroupSizes,
+        #[serde(default = "moving_only")]
+        onsets: Vec<Onset>,
+    },
+    Spikes {
+        probability: f64,
+        magnitude: GroupSizes,
+        #[serde(default = "moving_only")]
+        onsets: Vec<Onset>,
+    },
+}
+
+impl CampaignKind {
+    pub(super) fn onsets(&self) -> &[Onset] {
+        match self {
+            Self::Freeze { onsets }
+            | Self::Bias { onsets, .. }
+            | Self::Drift { onsets, .. }
+            | Self::Gain { onsets, .. }
+            | Self::Noise { onsets, .. }
+            | Self::Dropout { onsets }
+            | Self::Stuck { onsets, .. }
+            | Self::Spikes { onsets, .. } => onsets,
+        }
+    }
+
+    /// The scenario fault kind for a channel.
+    pub(super) fn fault_kind(&self, channel: &str) -> FaultKind {
+        match self {
+            Self::Freeze { .. } => FaultKind::Freeze {},
+            Self::Bias { offset, .. } => FaultKind::Bias {
+                offset: offset.for_channel(channel),
+            },
+            Self::Drift { rate, .. } => FaultKind::Drift {
+                rate: rate.for_channel(channel),
+            },
+            Self::Gain { factor, .. } => FaultKind::Gain { factor: *factor },
+            Self::Noise { factor, .. } => FaultKind::Noise { factor: *factor },
+            Self::Dropout { .. } => FaultKind::Dropout {},
+            Self::Stuck { value, .. } => FaultKind::Stuck {
+                value: value.for_channel(channel),
+            },
+            Self::Spikes {
+                probability,
+                magnitude,
+                ..
+            } => FaultKind::Spikes {
+                probability: *probability,
+                magnitude: magnitude.for_channel(channel),
+            },
+        }
+    }
+}
+
+/// An arm of the campaign: a scenario template and the joints whose sensors fail.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ArmEntry {
+    /// Short name (used in tables).
+    pub name: String,
+    /// A healthy scenario (relative to the campaign file); its faults are replaced.
+    pub scenario: PathBuf,
+    /// Joints (1-based) that `enc*` and `tach*` expand to.
+    #[serde(default = "first_joint")]
+    pub joints: Vec<usize>,
+    /// Scenario keys laid over the template (after the campaign's `[defaults]`), as a scenario
+    /// file writes them (`[arms.overrides.plant] engine = "rapier"`).
+    #[serde(default)]
+    pub overrides: toml::Table,
+}
+
+fn first_joint() -> Vec<usize> {
+    vec![1]
+}
+
+/// A two-fault cell: its faults as in a scenario file, `enc*` and `tach*` meaning the arm's first
+/// listed joint.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PairEntry {
+    pub label: String,
+    pub faults: Vec<FaultSpec>,
+}
+
+/// The healthy reaching benchmark.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ReachingConfig {
+    /// Random reaching tasks per arm.
+    pub tasks: usize,
+    /// Length of each task (s).
+    pub duration: f64,
+    /// Seed of the targets (the runs use seed 1).
+    pub seed: u64,
+    /// Healthy runs of the detector's calibration, per task.
+    pub calibration_runs: usize,
+}
+
+impl Default for ReachingConfig {
+    fn default() -> Self {
+        Self {
+            tasks: 100,
+            duration: 6.0,
+            seed: 1,
+            calibration_runs: 10,
+        }
+    }
+}
+
+/// A campaign file.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CampaignConfig {
+    pub name: String,
+    #[serde(default)]
+    pub description: String,
+    #[serde(default = "default_seeds")]
+    pub seeds: usize,
+    /// Methods (default: every method).
+    #[serde(default)]
+    pub methods: Option<Vec<Method>>,
+    #[serde(default)]
+    pub verdict: VerdictConfig,
+    #[serde(default)]
+    pub onsets: OnsetConfig,
+    /// Scenario keys laid over every arm's template (before the arm's own `overrides`), as a
+    /// scenario file writes them: `[defaults] duration = 15.0`, `[defaults.plant] engine =
+    /// "articulated"`. Typed by the scenario's schema when merged; errors name this file and
+    /// `defaults.KEY`.
+    #[serde(default)]
+    pub defaults: toml::Table,
+    pub arms: Vec<ArmEntry>,
+    /// Fault channels: `enc*` and `tach*` (each of the arm's joints), `cam` (every camera
+    /// output), or any scenario selector (`enc2`, `cam_u`).
+    #[serde(default = "default_channels")]
+    pub channels: Vec<String>,
+    #[serde(default)]
+    pub kinds: Vec<CampaignKind>,
+    #[serde(default)]
+    pub pairs: Vec<PairEntry>,
+    /// A healthy cell per arm (false alarms per hour).
+    #[serde(default = "yes")]
+    pub healthy: bool,
+    /// The healthy reaching benchmark; absent: not run.
+    #[serde(default)]
+    pub reaching: Option<ReachingConfig>,
+}
+
+impl CampaignConfig {
+    /// Reads a campaign file (errors name the file and the key).
+    pub fn load(path: &Path) -> Result<Self, ScenarioError> {
+        let text = fsio::read_text(path, fsio::MAX_SCENARIO_BYTES)?;
+        let parse = |message: String| ScenarioError::Parse {
+            path: path.to_path_buf(),
+            message,
+        };
+        let de = toml::Deserializer::parse(&text).map_err(|e| parse(e.to_string()))?;
+        serde_path_to_error::deserialize(de).map_err(|e| {
+            let key = e.path().to_string();
+            let message = e.into_inner().to_string();
+            let hint = if message.contains("unknown field `set`") {
+                "; `set = [...]` strings became tables with the scenario's own keys: `[defaults]` \
+                 for every arm, `[arms.overrides]` for one"
+            } else {
+                ""
+            };
+            parse(if key == "." {
+                format!("{}{hint}", message.trim_end())
+            } else {
+                format!("`{key}`: {}{hint}", message.trim_end())
+            })
+        })
+    }
+}
+
+fn default_channels() -> Vec<String> {
+    vec!["enc*".into(), "tach*".into(), "cam".into()]
+}

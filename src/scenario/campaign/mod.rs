@@ -1,0 +1,357 @@
+//! Fault campaigns: every fault on every channel of every arm, run by every method over the same
+//! seeds, summarised as a matrix with the metrics of the fault-diagnosis literature; and the
+//! healthy reaching benchmark beside it (what fault tolerance costs when nothing fails).
+//!
+//! A campaign file names arms (scenario templates: a healthy task whose first target is held from
+//! t = 0 and whose second target comes at the switch time), fault channels, fault kinds with their
+//! size per sensor group, onsets and two-fault pairs. The grid is expanded into cells
+//! ([`expand`]); each cell runs every method over the seeds 1..=N. Jobs (cell x method x seed) are
+//! numbered in one canonical order, and `--shard K/N` runs those whose number is K-1 modulo N: a
+//! run's seed depends only on its cell and seed index, so shards merged ([`merge`]) give exactly
+//! the unsharded records.
+//!
+//! Onsets: `moving`, the fault at `onsets.moving` (8 s), while the arm travels to the second
+//! target (switch at 7.5 s in the bundled templates); `rest`, the fault at `onsets.rest` (5 s)
+//! with the second target removed, so the arm rests until the end; `rest-then-motion`, the fault
+//! at `onsets.rest` with the second target kept, so the arm moves after the fault.
+
+mod config;
+mod grid;
+mod merge;
+mod reaching;
+mod run;
+mod summary;
+
+use std::path::{Path, PathBuf};
+
+use super::{LoadedScenario, Method, RunSetup, ScenarioError};
+use crate::fsio;
+
+pub use config::{
+    ArmEntry, CampaignConfig, CampaignKind, GroupSizes, Onset, OnsetConfig, PairEntry,
+    ReachingConfig, VerdictConfig,
+};
+pub use grid::{Cell, expand};
+pub use merge::merge;
+pub use reaching::{ReachingRun, ReachingTask};
+pub use run::{CampaignRecords, CampaignRun, Shard, Verdict, run_campaign};
+pub use summary::{CellSummary, MethodSummary, summarise, worse_than_no_ft};
+
+/// Most cells a campaign may expand to, and most jobs (cells x methods x seeds).
+pub const MAX_CELLS: usize = 100_000;
+pub const MAX_JOBS: usize = 10_000_000;
+/// Most seeds per cell.
+pub const MAX_SEEDS: usize = 10_000;
+/// Version of campaign.json's layout.
+pub const CAMPAIGN_FORMAT: u32 = 1;
+
+/// The default campaign of the source tree (`assets/campaigns/default.toml`).
+pub fn bundled_campaign_path() -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/campaigns/default.toml")
+}
+
+/// A loaded campaign: its file, the arms' setups, the expanded grid.
+#[derive(Clone)]
+pub struct Campaign {
+    pub config: CampaignConfig,
+    pub path: PathBuf,
+    pub arms: Vec<RunSetup>,
+    pub cells: Vec<Cell>,
+    pub methods: Vec<Method>,
+    pub fingerprint: String,
+}
+
+/// The bundled default campaign, embedded.
+pub const DEFAULT_CAMPAIGN_NAME: &str = "default.toml";
+
+fn invalid(path: &Path, field: &str, message: String) -> ScenarioError {
+    ScenarioError::Invalid {
+        path: path.to_path_buf(),
+        field: field.to_string(),
+        message,
+    }
+}
+
+impl Campaign {
+    /// Reads a campaign file, applies `overrides` to every arm's template, and prepares it.
+    pub fn load(path: &Path, overrides: &[String]) -> Result<Self, ScenarioError> {
+        Self::from_config(CampaignConfig::load(path)?, path, overrides)
+    }
+
+    /// Validates a campaign and prepares its arms (loading each template, training its GP).
+    pub fn from_config(
+        config: CampaignConfig,
+        path: &Path,
+        overrides: &[String],
+    ) -> Result<Self, ScenarioError> {
+        let methods = validate(&config, path)?;
+        let arms = prepare_arms(&config, path, overrides)?;
+        let cells = expand(&config, &config.onsets);
+        check_cells(&config, path, &arms, &cells, &methods)?;
+        let fingerprint = campaign_fingerprint(&config, &arms);
+        Ok(Self {
+            config,
+            path: path.to_path_buf(),
+            arms,
+            cells,
+            methods,
+            fingerprint,
+        })
+    }
+
+    /// A campaign for writing tables from records alone (`aift merge`): the grid from the
+    /// configuration, no arm prepared.
+    pub fn plan(config: CampaignConfig) -> Self {
+        let cells = expand(&config, &config.onsets);
+        let methods = config
+            .methods
+            .clone()
+            .unwrap_or_else(|| Method::ALL.to_vec());
+        Self {
+            config,
+            path: PathBuf::new(),
+            arms: vec![],
+            cells,
+            methods,
+            fingerprint: String::new(),
+        }
+    }
+
+    /// The setup a cell runs: its arm's, with the cell's faults and, at rest, one target.
+    pub fn cell_setup(&self, cell: &Cell) -> RunSetup {
+        let mut s = self.arms[cell.arm].clone();
+        s.loaded.scenario.faults = cell.faults.clone();
+        s.faults = cell
+            .faults
+            .iter()
+            .map(|f| f.to_fault(&s.layout).expect("validated"))
+            .collect();
+        if cell.rest {
+            s.loaded.scenario.targets.truncate(1);
+        }
+        s
+    }
+
+    /// Every job in canonical order: (cell, method, seed index).
+    pub fn jobs(&self) -> Vec<(usize, Method, usize)> {
+        let mut jobs = Vec::new();
+        for c in 0..self.cells.len() {
+            for &m in &self.methods {
+                for s in 0..self.config.seeds {
+                    jobs.push((c, m, s));
+                }
+            }
+        }
+        jobs
+    }
+}
+
+/// Checks the campaign file's own fields (name, seeds, arms, verdict, onsets, methods, reaching);
+/// returns the methods it runs.
+fn validate(config: &CampaignConfig, path: &Path) -> Result<Vec<Method>, ScenarioError> {
+    let bad = |field: &str, message: String| invalid(path, field, message);
+    if config.name.is_empty()
+        || !config
+            .name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || "_-.".contains(c))
+    {
+        return Err(bad(
+            "name",
+            "must be non-empty letters, digits, '_', '-' or '.'".into(),
+        ));
+    }
+    if !(1..=MAX_SEEDS).contains(&config.seeds) {
+        return Err(bad("seeds", format!("must be in 1..={MAX_SEEDS}")));
+    }
+    if config.arms.is_empty() {
+        return Err(bad("arms", "at least one arm is needed".into()));
+    }
+    if config.arms.len() > 1000 {
+        return Err(bad("arms", "at most 1000".into()));
+    }
+    let v = &config.verdict;
+    if !(v.tolerance > 0.0
+        && v.degraded >= v.tolerance
+        && v.runaway >= v.degraded
+        && v.tolerance.is_finite()
+        && v.runaway.is_finite())
+    {
+        return Err(bad(
+            "verdict",
+            "needs 0 < tolerance <= degraded <= runaway, all finite".into(),
+        ));
+    }
+    let o = &config.onsets;
+    if !(o.moving.is_finite() && o.moving >= 0.0 && o.rest.is_finite() && o.rest >= 0.0) {
+        return Err(bad("onsets", "times must be finite and >= 0".into()));
+    }
+    let methods = match &config.methods {
+        Some(m) if m.is_empty() => return Err(bad("methods", "lists no method".into())),
+        Some(m) => {
+            for (i, a) in m.iter().enumerate() {
+                if m[..i].contains(a) {
+                    return Err(bad("methods", format!("{a} is listed twice")));
+                }
+            }
+            m.clone()
+        }
+        None => Method::ALL.to_vec(),
+    };
+    if let Some(r) = &config.reaching
+        && (r.tasks == 0
+            || r.tasks > 100_000
+            || !(r.duration.is_finite() && r.duration > 0.0 && r.duration <= 1e4)
+            || !(2..=10_000).contains(&r.calibration_runs))
+    {
+        return Err(bad(
+            "reaching",
+            "needs 1..=100000 tasks, a duration in (0, 1e4] s and 2..=10000 calibration runs"
+                .into(),
+        ));
+    }
+    Ok(methods)
+}
+
+/// Loads each arm's template (laid over by the campaign's `[defaults]`, the arm's `overrides`,
+/// then the command line's), prepares it and checks it against the arm's entry and the onsets.
+fn prepare_arms(
+    config: &CampaignConfig,
+    path: &Path,
+    overrides: &[String],
+) -> Result<Vec<RunSetup>, ScenarioError> {
+    let bad = |field: &str, message: String| invalid(path, field, message);
+    let base = path
+        .parent()
+        .map(Path::to_path_buf)
+        .unwrap_or_else(|| PathBuf::from("."));
+    let mut arms = Vec::new();
+    for (i, arm) in config.arms.iter().enumerate() {
+        let field = format!("arms[{i}]");
+        if arm.joints.is_empty() {
+            return Err(bad(&format!("{field}.joints"), "lists no joint".into()));
+        }
+        let layers = [
+            super::Layer {
+                file: path.to_path_buf(),
+                key: "defaults".into(),
+                table: config.defaults.clone(),
+            },
+            super::Layer {
+                file: path.to_path_buf(),
+                key: format!("{field}.overrides"),
+                table: arm.overrides.clone(),
+            },
+        ];
+        let loaded =
+            LoadedScenario::from_file_layered(&base.join(&arm.scenario), &layers, overrides)?;
+        let setup = RunSetup::prepare(loaded)?;
+        let sc = setup.scenario();
+        let n = setup.layout.n_joints();
+        if let Some(&j) = arm.joints.iter().find(|&&j| j == 0 || j > n) {
+            return Err(bad(
+                &format!("{field}.joints"),
+                format!("joint {j} is not a joint of the arm (1..={n})"),
+            ));
+        }
+        if !sc.faults.is_empty() {
+            return Err(bad(
+                &format!("{field}.scenario"),
+                "the template must be healthy (its faults would be mixed with the cells')".into(),
+            ));
+        }
+        let needs_motion = config
+            .kinds
+            .iter()
+            .any(|k| k.onsets().iter().any(|o| *o != Onset::Rest));
+        if needs_motion && sc.targets.len() < 2 {
+            return Err(bad(
+                &format!("{field}.scenario"),
+                "needs a second target (the motion of `moving` and `rest-then-motion` cells)"
+                    .into(),
+            ));
+        }
+        arms.push(setup);
+    }
+    Ok(arms)
+}
+
+/// Checks the expanded grid: its size, and each cell's faults against its arm (a valid fault
+/// that starts before the run ends).
+fn check_cells(
+    config: &CampaignConfig,
+    path: &Path,
+    arms: &[RunSetup],
+    cells: &[Cell],
+    methods: &[Method],
+) -> Result<(), ScenarioError> {
+    let bad = |field: &str, message: String| invalid(path, field, message);
+    if cells.len() > MAX_CELLS {
+        return Err(bad(
+            "kinds",
+            format!("{} cells; at most {MAX_CELLS}", cells.len()),
+        ));
+    }
+    let jobs = cells
+        .len()
+        .saturating_mul(methods.len())
+        .saturating_mul(config.seeds);
+    if jobs > MAX_JOBS {
+        return Err(bad(
+            "seeds",
+            format!("{jobs} runs (cells x methods x seeds); at most {MAX_JOBS}"),
+        ));
+    }
+    for cell in cells {
+        let setup = &arms[cell.arm];
+        let sc = setup.scenario();
+        for (k, f) in cell.faults.iter().enumerate() {
+            f.to_fault(&setup.layout).map_err(|e| {
+                bad(
+                    &format!(
+                        "cell `{}` of arm {}: fault {k}.{}",
+                        cell.label, config.arms[cell.arm].name, e.field
+                    ),
+                    e.message,
+                )
+            })?;
+            if f.start >= sc.duration {
+                return Err(bad(
+                    &format!("cell `{}`", cell.label),
+                    format!(
+                        "its fault starts at {} s, after the run ends ({} s)",
+                        f.start, sc.duration
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// A label of everything the campaign's results depend on: the campaign file, each arm's
+/// scenario as resolved, its URDF and its GP (FNV-1a 64; a label, not a security hash).
+fn campaign_fingerprint(config: &CampaignConfig, arms: &[RunSetup]) -> String {
+    let mut hash: u64 = 0xcbf29ce484222325;
+    let mut feed = |text: &str| {
+        for b in text.bytes().chain(std::iter::once(0)) {
+            hash ^= u64::from(b);
+            hash = hash.wrapping_mul(0x100000001b3);
+        }
+    };
+    feed(env!("CARGO_PKG_VERSION"));
+    feed(&toml::to_string(config).expect("a campaign always serialises"));
+    for a in arms {
+        let mut s = a.scenario().clone();
+        s.robot.urdf = PathBuf::new();
+        feed(&toml::to_string(&s).expect("a scenario always serialises"));
+        if let Ok((_, urdf)) = a
+            .loaded
+            .read_relative(&a.scenario().robot.urdf, fsio::MAX_URDF_BYTES)
+        {
+            feed(&urdf);
+        }
+        feed(&a.gp.to_json());
+    }
+    format!("{hash:016x}")
+}

@@ -1,0 +1,371 @@
+//! Running a campaign: one job per (cell, method, seed), its verdict and recovery time; shards,
+//! the detector calibrations the jobs need, and the records.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use super::reaching::run_reaching;
+use super::{CAMPAIGN_FORMAT, Campaign, CampaignConfig, ReachingRun, VerdictConfig};
+use crate::precision::Calibration;
+use crate::scenario::calibrate;
+use crate::scenario::runner::{Observer, TickRecord};
+use crate::scenario::runner::{ObserverMode, Run};
+use crate::scenario::{Method, RunResult, RunSetup, ScenarioError};
+
+/// How one run ended, as the campaign sees it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Verdict {
+    Recovered,
+    Degraded,
+    Failed,
+    Diverged,
+}
+
+impl Verdict {
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Recovered => "recovered",
+            Self::Degraded => "degraded",
+            Self::Failed => "failed",
+            Self::Diverged => "diverged",
+        }
+    }
+}
+
+/// One run of the campaign: everything its tables need, in full precision (shards carry these).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CampaignRun {
+    pub job: usize,
+    pub cell: usize,
+    pub method: Method,
+    pub seed: u64,
+    pub outcome: String,
+    pub verdict: Verdict,
+    /// MSE of (mu - q) of the faulty joints (every joint for camera faults and healthy cells)
+    /// from the first fault's start (healthy cells: over the run).
+    pub mse_post: f64,
+    pub max_final_error: f64,
+    pub runaway: bool,
+    /// Whether the first fault was detected (None: healthy cell).
+    pub detected: Option<bool>,
+    pub delay: Option<f64>,
+    pub isolation_correct: Option<bool>,
+    pub false_alarms: usize,
+    /// Simulated time (h).
+    pub hours: f64,
+    /// Time from the first fault's start until the belief error is back within 3 sigma of its
+    /// pre-fault level for good (None: not back by the end, or a healthy cell).
+    pub recover_time: Option<f64>,
+}
+
+/// Tracks the belief error of the faulty joints and when it is back within 3 sigma of its level
+/// before the fault.
+struct RecoveryObserver {
+    joints: Vec<usize>,
+    fault_tick: u64,
+    from_tick: u64,
+    sum2: f64,
+    count: u64,
+    threshold: Option<f64>,
+    last_above: Option<u64>,
+    last_tick: u64,
+}
+
+impl RecoveryObserver {
+    fn new(joints: Vec<usize>, fault_tick: u64, dt: f64) -> Self {
+        let skip = (1.0 / dt).round() as u64;
+        Self {
+            joints,
+            fault_tick,
+            from_tick: if fault_tick > skip { skip } else { 0 },
+            sum2: 0.0,
+            count: 0,
+            threshold: None,
+            last_above: None,
+            last_tick: 0,
+        }
+    }
+
+    /// Seconds from the fault until the error stayed within the threshold; None if it did not.
+    fn recover_time(&self, dt: f64) -> Option<f64> {
+        match self.last_above {
+            None => Some(0.0),
+            Some(k) if k >= self.last_tick => None,
+            Some(k) => Some((k + 1 - self.fault_tick) as f64 * dt),
+        }
+    }
+}
+
+impl Observer for RecoveryObserver {
+    fn iter(&mut self, r: &TickRecord<'_>) {
+        let e = self
+            .joints
+            .iter()
+            .map(|&j| (r.mu[j] - r.q[j]).abs())
+            .fold(0.0, f64::max);
+        self.last_tick = r.tick;
+        if r.tick < self.fault_tick {
+            if r.tick >= self.from_tick {
+                self.sum2 += e * e;
+                self.count += 1;
+            }
+            return;
+        }
+        let threshold = *self
+            .threshold
+            .get_or_insert_with(|| 3.0 * (self.sum2 / self.count.max(1) as f64).sqrt());
+        if e > threshold {
+            self.last_above = Some(r.tick);
+        }
+    }
+}
+
+/// Whether a joint is at (within 1 mrad of) one of its limits.
+fn at_limit(setup: &RunSetup, q: &[f64]) -> bool {
+    setup.model.joints.iter().zip(q).any(|(j, &q)| {
+        j.limits
+            .is_some_and(|(lo, hi)| q <= lo + 1e-3 || q >= hi - 1e-3)
+    })
+}
+
+fn verdict_of(r: &RunResult, runaway: bool, v: &VerdictConfig) -> Verdict {
+    if r.outcome.name() == "diverged" || !r.max_final_error.is_finite() {
+        Verdict::Diverged
+    } else if runaway || r.max_final_error > v.degraded {
+        Verdict::Failed
+    } else if r.max_final_error > v.tolerance {
+        Verdict::Degraded
+    } else {
+        Verdict::Recovered
+    }
+}
+
+/// Runs one job.
+fn run_job(
+    campaign: &Campaign,
+    setup: &RunSetup,
+    job: usize,
+    cell_index: usize,
+    method: Method,
+    seed_index: usize,
+    calibration: Option<&Calibration>,
+) -> Result<CampaignRun, ScenarioError> {
+    let cell = &campaign.cells[cell_index];
+    let sc = setup.scenario();
+    let dt = sc.dt;
+    let seed = 1 + seed_index as u64;
+    let n = setup.layout.n_joints();
+    let mut joints: Vec<usize> = setup
+        .faults
+        .iter()
+        .flat_map(|f| crate::scenario::metrics::fault_joints(&setup.layout, f))
+        .collect();
+    joints.sort_unstable();
+    joints.dedup();
+    if joints.is_empty() {
+        joints = (0..n).collect();
+    }
+    let fault_tick = setup.faults.iter().map(|f| f.start_tick(dt)).min();
+    let mut recovery = RecoveryObserver::new(joints.clone(), fault_tick.unwrap_or(u64::MAX), dt);
+    let r = Run::new(setup, method)
+        .seed(seed)
+        .calibration(calibration)
+        .observe(&mut recovery, ObserverMode::Always)
+        .execute()?;
+    let mse_post = match &r.mse_post_fault_per_joint {
+        Some(post) => joints.iter().map(|&j| post[j]).sum::<f64>() / joints.len() as f64,
+        None => r.mse_per_joint.iter().sum::<f64>() / n as f64,
+    };
+    let runaway = r
+        .final_error_per_joint
+        .iter()
+        .any(|e| !e.is_finite() || *e > campaign.config.verdict.runaway)
+        || at_limit(setup, &r.q_final);
+    let first = r.faults.first();
+    Ok(CampaignRun {
+        job,
+        cell: cell_index,
+        method,
+        seed,
+        outcome: r.outcome.name().to_string(),
+        verdict: verdict_of(&r, runaway, &campaign.config.verdict),
+        mse_post,
+        max_final_error: r.max_final_error,
+        runaway,
+        detected: first.map(|f| f.detected_at.is_some()),
+        delay: first.and_then(|f| f.delay),
+        isolation_correct: first.and_then(|f| f.isolation_correct),
+        false_alarms: r.false_alarms,
+        hours: r.ticks_run as f64 * dt / 3600.0,
+        recover_time: if cell.is_healthy() {
+            None
+        } else {
+            recovery.recover_time(dt)
+        },
+    })
+}
+
+/// A shard: which K of N.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Shard {
+    pub index: usize,
+    pub count: usize,
+}
+
+impl Shard {
+    pub const WHOLE: Shard = Shard { index: 1, count: 1 };
+
+    /// Parses `K/N` (1 <= K <= N <= 100000).
+    pub fn parse(text: &str) -> Result<Self, String> {
+        let (k, n) = text
+            .split_once('/')
+            .ok_or_else(|| format!("{text:?} is not K/N"))?;
+        let k: usize = k
+            .trim()
+            .parse()
+            .map_err(|_| format!("{text:?}: K is not a number"))?;
+        let n: usize = n
+            .trim()
+            .parse()
+            .map_err(|_| format!("{text:?}: N is not a number"))?;
+        if n == 0 || n > 100_000 || k == 0 || k > n {
+            return Err(format!("{text:?}: needs 1 <= K <= N <= 100000"));
+        }
+        Ok(Self { index: k, count: n })
+    }
+
+    pub fn contains(&self, job: usize) -> bool {
+        job % self.count == self.index - 1
+    }
+}
+
+/// The records of a campaign run (or of one shard of it).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CampaignRecords {
+    pub format_version: u32,
+    /// The campaign as run (what the tables need to be written again from the records alone).
+    pub config: CampaignConfig,
+    pub campaign: String,
+    pub fingerprint: String,
+    pub shard: Shard,
+    pub jobs: usize,
+    /// Each arm's plant and model error, in the order of the arms.
+    pub conditions: Vec<crate::scenario::Conditions>,
+    pub runs: Vec<CampaignRun>,
+    pub reaching: Vec<ReachingRun>,
+}
+
+/// The detector calibrations a set of jobs needs, one per distinct healthy schedule.
+fn calibrations(
+    campaign: &Campaign,
+    jobs: &[(usize, usize, Method, usize)],
+    cache: Option<&Path>,
+) -> Result<BTreeMap<String, Calibration>, ScenarioError> {
+    let mut needed: BTreeMap<String, RunSetup> = BTreeMap::new();
+    for &(_, c, m, _) in jobs {
+        if m.needs_detector() {
+            let setup = campaign.cell_setup(&campaign.cells[c]);
+            needed
+                .entry(crate::scenario::fingerprint(&setup))
+                .or_insert(setup);
+        }
+    }
+    let mut out = BTreeMap::new();
+    for (key, setup) in needed {
+        let runs = setup.scenario().detector.calibration_runs;
+        let (cal, _) = calibrate::cached_calibration(&setup, runs, cache)?;
+        out.insert(key, cal);
+    }
+    Ok(out)
+}
+
+/// Runs the jobs of `shard` (and, with the whole campaign, the reaching benchmark), in parallel,
+/// in canonical order; `progress(done, total)` is called after each job.
+pub fn run_campaign(
+    campaign: &Campaign,
+    shard: Shard,
+    cache: Option<&Path>,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<CampaignRecords, ScenarioError> {
+    let all = campaign.jobs();
+    let jobs: Vec<(usize, usize, Method, usize)> = all
+        .iter()
+        .enumerate()
+        .filter(|(j, _)| shard.contains(*j))
+        .map(|(j, &(c, m, s))| (j, c, m, s))
+        .collect();
+    let reaching = campaign.reaching_tasks();
+    let reaching_jobs: Vec<usize> = (0..reaching.len())
+        .filter(|i| shard.contains(all.len() + i))
+        .collect();
+    let total = jobs.len() + reaching_jobs.len();
+    let cals = calibrations(campaign, &jobs, cache)?;
+    let done = std::sync::atomic::AtomicUsize::new(0);
+    let results: Vec<Result<CampaignRun, ScenarioError>> = jobs
+        .par_iter()
+        .map(|&(j, c, m, s)| {
+            let setup = campaign.cell_setup(&campaign.cells[c]);
+            let cal = if m.needs_detector() {
+                cals.get(&crate::scenario::fingerprint(&setup))
+            } else {
+                None
+            };
+            let r = run_job(campaign, &setup, j, c, m, s, cal);
+            progress(
+                done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1,
+                total,
+            );
+            r
+        })
+        .collect();
+    let runs = results.into_iter().collect::<Result<Vec<_>, _>>()?;
+    let reach: Vec<Result<Vec<ReachingRun>, ScenarioError>> = reaching_jobs
+        .par_iter()
+        .map(|&i| {
+            let r = run_reaching(campaign, &reaching[i], all.len() + i, cache);
+            progress(
+                done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1,
+                total,
+            );
+            r
+        })
+        .collect();
+    let mut reaching_runs = Vec::new();
+    for r in reach {
+        reaching_runs.extend(r?);
+    }
+    Ok(CampaignRecords {
+        format_version: CAMPAIGN_FORMAT,
+        config: campaign.config.clone(),
+        campaign: campaign.config.name.clone(),
+        fingerprint: campaign.fingerprint.clone(),
+        shard,
+        jobs: all.len() + reaching.len(),
+        conditions: campaign.arms.iter().map(RunSetup::conditions).collect(),
+        runs,
+        reaching: reaching_runs,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shards_partition_the_jobs() {
+        let shards: Vec<Shard> = (1..=3).map(|k| Shard { index: k, count: 3 }).collect();
+        for job in 0..100 {
+            assert_eq!(shards.iter().filter(|s| s.contains(job)).count(), 1);
+        }
+        assert!(Shard::parse("0/3").is_err());
+        assert!(Shard::parse("4/3").is_err());
+        assert!(Shard::parse("3").is_err());
+        assert_eq!(Shard::parse("2/5").unwrap(), Shard { index: 2, count: 5 });
+    }
+}
