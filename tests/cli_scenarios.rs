@@ -426,6 +426,42 @@ fn bench_prints_name_value_lines() {
     }
 }
 
+/// The timed closed loop is the method asked for, by `--method` or by the scenario's
+/// `precision.method`: its belief MSE (deterministic per method and seed) tells them apart.
+#[test]
+fn bench_times_the_method_it_is_given() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mse = |extra: &[&str]| -> (String, f64) {
+        let mut args = vec!["bench", "--ticks", "200", "--set", "duration=1.0"];
+        args.extend_from_slice(extra);
+        let out = aift(&args, tmp.path());
+        ok(&out);
+        let stdout = String::from_utf8_lossy(&out.stdout).to_string();
+        let field = |name: &str| {
+            stdout
+                .lines()
+                .find_map(|l| l.strip_prefix(&format!("{name}: ")))
+                .unwrap_or_else(|| panic!("no {name} in\n{stdout}"))
+                .to_string()
+        };
+        (
+            field("method"),
+            field("closed_loop_belief_mse").parse().unwrap(),
+        )
+    };
+    let (m0, plain) = mse(&[]);
+    let (m1, by_set) = mse(&["--set", "precision.method=\"no-ft\""]);
+    let (m2, by_flag) = mse(&["--method", "no-ft"]);
+    let (m3, ekf) = mse(&["--method", "ekf-gate"]);
+    assert_eq!(
+        [m0.as_str(), &m1, &m2, &m3],
+        ["pl-always", "no-ft", "no-ft", "ekf-gate"]
+    );
+    assert_eq!(by_set, by_flag);
+    assert_ne!(plain, by_set);
+    assert_ne!(by_set, ekf);
+}
+
 #[test]
 fn a_diverging_run_is_a_result_not_an_error() {
     let tmp = tempfile::tempdir().unwrap();

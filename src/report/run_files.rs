@@ -62,6 +62,10 @@ pub fn summary_json(setup: &RunSetup, result: &RunResult) -> serde_json::Value {
         "seed": result.seed,
         "outcome": result.outcome.name(),
         "diverged": ended,
+        "chattering": match &result.outcome {
+            crate::scenario::Outcome::Chattering(c) => json!(c.describe()),
+            _ => serde_json::Value::Null,
+        },
         "ticks": result.ticks_run,
         "mse_per_joint": result.mse_per_joint,
         "mse_faulty": result.mse_faulty,

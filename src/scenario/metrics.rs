@@ -453,6 +453,134 @@ impl Observer for RunMetrics {
     }
 }
 
+/// A joint that oscillated near the tick rate: where, how fast, how large, from when.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Chattering {
+    /// The joint (0-based).
+    pub joint: usize,
+    /// The oscillation's frequency, from the rate of sign changes of the joint's acceleration.
+    pub frequency_hz: f64,
+    /// Half the mean change of the joint's velocity per tick over the window (rad/s).
+    pub amplitude: f64,
+    /// Start of the first window found chattering (s).
+    pub since: f64,
+}
+
+impl Chattering {
+    pub fn describe(&self) -> String {
+        format!(
+            "joint {} chatters at {:.0} Hz (velocity amplitude {:.2} rad/s) from {:.3} s",
+            self.joint + 1,
+            self.frequency_hz,
+            self.amplitude,
+            self.since
+        )
+    }
+}
+
+/// Finds a joint whose true velocity oscillates near the tick rate (docs/method.md, "Metrics"):
+/// over consecutive windows of [`ChatterMonitor::WINDOW`] seconds, the velocity's change per
+/// tick flips sign on at least [`ChatterMonitor::FLIPS`] of the ticks with a mean size of at
+/// least 2 x [`ChatterMonitor::AMPLITUDE`], for [`ChatterMonitor::SUSTAIN`] windows in a row.
+/// Smooth motion changes sign rarely; noise-driven jitter is orders of magnitude smaller.
+#[derive(Clone, Debug)]
+pub struct ChatterMonitor {
+    dt: f64,
+    window: u64,
+    last_qd: Vec<f64>,
+    last_change: Vec<f64>,
+    flips: Vec<u64>,
+    size: Vec<f64>,
+    run: Vec<u32>,
+    window_start: Vec<f64>,
+    seen: u64,
+    found: Option<Chattering>,
+}
+
+impl ChatterMonitor {
+    /// Window length (s).
+    pub const WINDOW: f64 = 0.05;
+    /// Share of ticks in a window on which the change of velocity flips sign.
+    pub const FLIPS: f64 = 0.8;
+    /// Least oscillation amplitude of the velocity (rad/s).
+    pub const AMPLITUDE: f64 = 0.05;
+    /// Windows in a row.
+    pub const SUSTAIN: u32 = 2;
+
+    pub fn new(dt: f64, n: usize) -> Self {
+        Self {
+            dt,
+            window: ((Self::WINDOW / dt).round() as u64).max(10),
+            last_qd: vec![0.0; n],
+            last_change: vec![0.0; n],
+            flips: vec![0; n],
+            size: vec![0.0; n],
+            run: vec![0; n],
+            window_start: vec![0.0; n],
+            seen: 0,
+            found: None,
+        }
+    }
+
+    /// The first chattering joint found, if any.
+    pub fn found(&self) -> Option<Chattering> {
+        self.found.clone()
+    }
+}
+
+impl Observer for ChatterMonitor {
+    fn iter(&mut self, r: &TickRecord<'_>) {
+        self.observe(r.t, r.qd);
+    }
+}
+
+impl ChatterMonitor {
+    /// One tick: the time and the joints' true velocity.
+    pub fn observe(&mut self, t: f64, qd: &[f64]) {
+        if self.found.is_some() {
+            return;
+        }
+        let w = self.window;
+        for (i, &qd) in qd.iter().enumerate() {
+            let change = qd - self.last_qd[i];
+            if self.seen >= 2 && change * self.last_change[i] < 0.0 {
+                self.flips[i] += 1;
+            }
+            if self.seen >= 1 {
+                self.size[i] += change.abs();
+            }
+            self.last_qd[i] = qd;
+            self.last_change[i] = change;
+        }
+        self.seen += 1;
+        if !self.seen.is_multiple_of(w) {
+            return;
+        }
+        for i in 0..qd.len() {
+            let share = self.flips[i] as f64 / w as f64;
+            let amplitude = 0.5 * self.size[i] / w as f64;
+            if share >= Self::FLIPS && amplitude >= Self::AMPLITUDE {
+                if self.run[i] == 0 {
+                    self.window_start[i] = t - (w - 1) as f64 * self.dt;
+                }
+                self.run[i] += 1;
+                if self.run[i] >= Self::SUSTAIN && self.found.is_none() {
+                    self.found = Some(Chattering {
+                        joint: i,
+                        frequency_hz: share / (2.0 * self.dt),
+                        amplitude,
+                        since: self.window_start[i].max(0.0),
+                    });
+                }
+            } else {
+                self.run[i] = 0;
+            }
+            self.flips[i] = 0;
+            self.size[i] = 0.0;
+        }
+    }
+}
+
 /// Stops a run whose state or belief leaves any sane range: an observer of every tick.
 #[derive(Clone, Debug, Default)]
 pub struct DivergenceGuard {
@@ -481,5 +609,80 @@ impl Observer for DivergenceGuard {
     }
     fn stop(&self) -> Option<StopReason> {
         self.diverged.map(StopReason::Diverged)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::ChatterMonitor;
+    use rand::{RngExt, SeedableRng};
+
+    fn run(dt: f64, seconds: f64, qd: impl Fn(u64, f64) -> [f64; 2]) -> ChatterMonitor {
+        let mut m = ChatterMonitor::new(dt, 2);
+        let ticks = (seconds / dt).round() as u64;
+        for k in 0..ticks {
+            let t = k as f64 * dt;
+            m.observe(t, &qd(k, t));
+        }
+        m
+    }
+
+    #[test]
+    fn an_oscillation_at_the_tick_rate_is_found_with_its_joint_frequency_and_amplitude() {
+        let dt = 1e-3;
+        // Joint 2 alternates +-0.3 rad/s around a slow motion from t = 0.4 s: Nyquist, 500 Hz.
+        let m = run(dt, 1.0, |k, t| {
+            let wobble = if t >= 0.4 {
+                0.3 * if k % 2 == 0 { 1.0 } else { -1.0 }
+            } else {
+                0.0
+            };
+            [0.5 * t.sin(), 0.2 * t.cos() + wobble]
+        });
+        let c = m.found().expect("chattering found");
+        assert_eq!(c.joint, 1);
+        assert!((c.frequency_hz - 500.0).abs() < 30.0, "{c:?}");
+        // Velocity swings by 0.6 rad/s per tick: amplitude 0.3.
+        assert!((c.amplitude - 0.3).abs() < 0.02, "{c:?}");
+        assert!(c.since >= 0.35 && c.since <= 0.45, "{c:?}");
+    }
+
+    #[test]
+    fn smooth_motion_steps_and_small_noise_are_not_chattering() {
+        let dt = 1e-3;
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let noise: Vec<f64> = (0..2000).map(|_| rng.random_range(-1e-3..1e-3)).collect();
+        let m = run(dt, 2.0, |k, t| {
+            // A fast damped oscillation at 20 Hz, a velocity step, and tick-rate noise.
+            let ring = 2.0 * (-3.0 * t).exp() * (2.0 * std::f64::consts::PI * 20.0 * t).sin();
+            let step = if t > 1.0 { 1.0 } else { 0.0 };
+            [ring + step, noise[k as usize]]
+        });
+        assert_eq!(m.found(), None);
+    }
+
+    #[test]
+    fn a_short_burst_is_not_sustained() {
+        let dt = 1e-3;
+        // One window's worth (40 ms) of a large tick-rate oscillation: not two windows in a row.
+        let m = run(dt, 1.0, |k, t| {
+            let on = (0.5..0.54).contains(&t);
+            [if on && k % 2 == 0 { 1.0 } else { 0.0 }, 0.0]
+        });
+        assert_eq!(m.found(), None);
+    }
+
+    #[test]
+    fn a_slower_oscillation_is_not_chattering_but_one_at_half_the_tick_rate_is() {
+        // Period of 4 ticks (+, +, -, -): the change flips on half the ticks only: not found;
+        // period 2 ticks is the discrete-time instability the monitor is for.
+        let dt = 2e-3;
+        let m = run(dt, 1.0, |k, _| {
+            [if (k / 2) % 2 == 0 { 0.5 } else { -0.5 }, 0.0]
+        });
+        assert_eq!(m.found(), None);
+        let m = run(dt, 1.0, |k, _| [0.0, if k % 2 == 0 { 0.5 } else { -0.5 }]);
+        let c = m.found().expect("found");
+        assert!((c.frequency_hz - 250.0).abs() < 15.0, "{c:?}");
     }
 }

@@ -25,7 +25,7 @@ use std::path::PathBuf;
 pub use config::{GpConfig, MAX_TICKS, PrecisionConfig, RobotConfig, Scenario, Target};
 pub use load::{DEFAULT_SCENARIO_NAME, Layer, LoadedScenario, parse_scenario, scenario_schema};
 pub use method::Method;
-pub use metrics::{FaultOutcome, RunMetrics, RunResult};
+pub use metrics::{ChatterMonitor, Chattering, FaultOutcome, RunMetrics, RunResult};
 pub use runner::{
     DivergenceReason, NoObserver, Observer, ObserverMode, Observers, Outcome, Run, RunStart,
     Simulation, StopReason, TickRecord,

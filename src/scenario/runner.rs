@@ -12,7 +12,7 @@
 use std::time::Instant;
 
 use super::method::MethodParts;
-use super::metrics::{DivergenceGuard, RunMetrics, RunResult};
+use super::metrics::{ChatterMonitor, DivergenceGuard, RunMetrics, RunResult};
 use super::{Method, RunSetup, ScenarioError};
 use crate::control::Control;
 use crate::estimation::{Estimate, Estimator, EstimatorInput};
@@ -78,6 +78,9 @@ pub enum Outcome {
         tick: u64,
         reason: StopReason,
     },
+    /// The run reached its end, but a joint oscillated near the tick rate (a failure: the
+    /// loop is unstable in discrete time; docs/method.md, "Metrics").
+    Chattering(super::metrics::Chattering),
 }
 
 impl Outcome {
@@ -86,6 +89,7 @@ impl Outcome {
             Self::Completed => "completed",
             Self::Diverged { .. } => "diverged",
             Self::Stopped { .. } => "stopped",
+            Self::Chattering(_) => "chattering",
         }
     }
 
@@ -95,6 +99,7 @@ impl Outcome {
             Self::Completed => None,
             Self::Diverged { tick, reason } => Some((*tick, reason.describe().to_string())),
             Self::Stopped { tick, reason } => Some((*tick, reason.describe())),
+            Self::Chattering(_) => None,
         }
     }
 }
@@ -577,6 +582,7 @@ impl<'a> Run<'a> {
         };
         let mut metrics = RunMetrics::new(setup, sim.nominal());
         let mut guard = DivergenceGuard::default();
+        let mut chatter = ChatterMonitor::new(setup.scenario().dt, setup.model.joints.len());
         let start = RunStart {
             setup,
             label: &label,
@@ -594,6 +600,7 @@ impl<'a> Run<'a> {
             extra.iter(&record);
             metrics.iter(&record);
             guard.iter(&record);
+            chatter.iter(&record);
             if let Some(StopReason::Diverged(reason)) = guard.stop() {
                 outcome = Outcome::Diverged { tick: k, reason };
                 break;
@@ -605,6 +612,9 @@ impl<'a> Run<'a> {
             sim.actuate(None);
         }
         let wall_seconds = clock.elapsed().as_secs_f64();
+        if let (Outcome::Completed, Some(c)) = (&outcome, chatter.found()) {
+            outcome = Outcome::Chattering(c);
+        }
         observers.finish(&outcome);
         extra.finish(&outcome);
         let (q, _) = sim.arm().state();

@@ -27,6 +27,8 @@ pub struct TableRow {
     /// Fraction of runs whose isolation named a faulty channel (of runs that isolated).
     pub isolation_correct: Option<f64>,
     pub false_alarms: usize,
+    /// Runs that did not end `completed`: diverged, stopped, or chattering (docs/method.md,
+    /// "Metrics").
     pub diverged: usize,
 }
 

@@ -209,6 +209,13 @@ pub struct BenchArgs {
     /// Ticks per measured stage.
     #[arg(long, default_value_t = 20_000)]
     pub ticks: u64,
+    /// Method of the timed closed loop (default: the scenario's `precision.method`, which
+    /// `--set precision.method=...` changes).
+    #[arg(long)]
+    pub method: Option<String>,
+    /// Detector calibration file (pl-detect, deterministic); default: calibrate on the fly.
+    #[arg(long)]
+    pub calib: Option<PathBuf>,
 }
 
 #[derive(Debug, Args)]

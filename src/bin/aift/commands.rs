@@ -509,6 +509,9 @@ fn print_run_result(json: bool, setup: &RunSetup, result: &aift::scenario::RunRe
             tick as f64 * setup.scenario().dt
         );
     }
+    if let aift::scenario::Outcome::Chattering(c) = &result.outcome {
+        say!(json, "  {}", c.describe());
+    }
     say!(
         json,
         "belief MSE per joint: {}",
@@ -736,12 +739,24 @@ fn bench(args: BenchArgs) -> Result<(), Failure> {
         )));
     }
     let setup = prepare(&args.scenario)?;
-    let figures = scenario::bench::bench(&setup, args.ticks).map_err(bad_input)?;
+    let method = match &args.method {
+        Some(m) => parse_method(m)?,
+        None => setup.scenario().precision.method,
+    };
+    let calibration = calibration_for(&setup, &[method], args.calib.as_ref())?;
+    let figures = scenario::bench::bench(&setup, method, calibration.as_deref(), args.ticks)
+        .map_err(bad_input)?;
     println!("scenario: {}", setup.scenario().name);
+    println!("method: {method}");
     println!("joints: {}", setup.model.joints.len());
     println!("gp_points: {}", setup.gp.n_points());
     for f in figures {
-        println!("{}: {:.3}", f.name, f.value);
+        // Three decimals for timings; small figures (an MSE) in scientific notation.
+        if f.value != 0.0 && f.value.abs() < 0.1 {
+            println!("{}: {:.4e}", f.name, f.value);
+        } else {
+            println!("{}: {:.3}", f.name, f.value);
+        }
     }
     Ok(())
 }

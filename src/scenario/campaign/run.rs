@@ -136,7 +136,7 @@ fn at_limit(setup: &RunSetup, q: &[f64]) -> bool {
 fn verdict_of(r: &RunResult, runaway: bool, v: &VerdictConfig) -> Verdict {
     if r.outcome.name() == "diverged" || !r.max_final_error.is_finite() {
         Verdict::Diverged
-    } else if runaway || r.max_final_error > v.degraded {
+    } else if runaway || r.max_final_error > v.degraded || r.outcome.name() == "chattering" {
         Verdict::Failed
     } else if r.max_final_error > v.tolerance {
         Verdict::Degraded
