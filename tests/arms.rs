@@ -151,7 +151,9 @@ fn init_writes_a_scenario_that_reaches_its_targets_under_every_method() {
 /// damping, wrist joints of 1e-3 kg m^2 under a 1.5 kg m^2 shoulder, three continuous joints, a
 /// gripper). `aift init`'s gains hold it: without fault tolerance it ends within 0.01 rad of its
 /// targets on the articulated engine (the diagonal-inertia rule of 2026-12-01 left the wrist
-/// 0.42 rad off), and the end effector goes on the link named as one, not on a finger.
+/// 0.42 rad off; the row-sum rule without the discrete-time limits reached them but chattered at
+/// the tick rate, which ends a run `chattering`), and the end effector goes on the link named
+/// as one, not on a finger.
 #[test]
 fn init_gains_hold_a_light_wristed_arm_from_outside_the_project() {
     let tmp = tempfile::tempdir().unwrap();
@@ -180,4 +182,32 @@ fn init_gains_hold_a_light_wristed_arm_from_outside_the_project() {
     eprintln!("jaco2 no-ft: final error {:?}", r.final_error_per_joint);
     assert_eq!(r.outcome.name(), "completed");
     assert!(r.max_final_error < 0.01, "{:?}", r.final_error_per_joint);
+}
+
+/// `init` keeps its gains stable in discrete time (src/scenario/init.rs, "Discrete-time
+/// limits"): a light roll joint whose centre of mass sits 0.5 mm off its axis, 0.6 m out on a
+/// heavy pitch joint (`tests/data/coaxial_wrist.urdf`), moves about 3.5e-7 kg m^2, while its
+/// row of the mass matrix couples to the shoulder; gains from that row alone chattered at the
+/// tick rate (kd dt / m_eff about 4). With the limits, no-FT reaches its targets and completes.
+#[test]
+fn init_gains_are_stable_in_discrete_time_on_a_light_coupled_roll_joint() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("coaxial.toml");
+    let urdf = common::repo("tests/data/coaxial_wrist.urdf");
+    let args = ["init", "--urdf", urdf.to_str().unwrap(), "--ee", "hand"];
+    let mut args: Vec<&str> = args.to_vec();
+    args.extend(["--out", out.to_str().unwrap()]);
+    common::aift_ok(&args, tmp.path());
+    for engine in ["articulated", "rapier"] {
+        let set = format!("plant.engine=\"{engine}\"");
+        let loaded = LoadedScenario::from_file(&out, &[set]).unwrap();
+        let setup = RunSetup::prepare(loaded).unwrap();
+        let (r, _) = common::run_recorded(&setup, Method::NoFt, 2, None);
+        assert_eq!(r.outcome.name(), "completed", "{engine}: {:?}", r.outcome);
+        assert!(
+            r.max_final_error < 0.01,
+            "{engine}: {:?}",
+            r.final_error_per_joint
+        );
+    }
 }

@@ -20,6 +20,13 @@
 //!   (Until 2026-12-02 m_i was the diagonal M_ii and gravity was left to the integral: a Kinova
 //!   Jaco2's wrist got kp 0.05-2 N m/rad and ended 0.42 rad off its target, no-FT, articulated
 //!   engine, 15 s; `panda_healthy.toml` was written by that rule.)
+//! - Discrete-time limits (since 2026-12-04): with m_eff_i = 1 / (M^-1)_ii, the smallest seen (the
+//!   inertia joint i's torque moves when the other joints are free: on a joint coaxial with
+//!   another, far below M_ii), kp_i <= (0.1 / dt)^2 m_eff_i and kd_i <= 0.5 m_eff_i / dt; then
+//!   the coupled modes: where dt lambda_max(M^-1 Kd) > 0.5 every kd is scaled down, where
+//!   dt sqrt(lambda_max(M^-1 Kp)) > 0.1 every kp and ki. An explicit velocity loop flips sign
+//!   every tick above kd dt / m = 1: a 7-DOF arm's coaxial roll joints chattered at 500 Hz under
+//!   the gains the rules above give alone.
 //! - Integral limit: 1.5 x the largest gravity torque seen (at least 1 N m), capped at the effort.
 //! - Camera: a pinhole looking along the axis in which the end effector moves least over the
 //!   training box (the smallest principal axis of 200 sampled positions), from 3 x the extent of
@@ -67,6 +74,16 @@ const STEP: f64 = 0.3;
 /// The most gravity alone may bend a joint from its set point under the proportional gain
 /// (rad); the integral removes the rest.
 const GRAVITY_SAG: f64 = 0.05;
+/// The tick `init` writes (`dt`).
+const DT: f64 = 1e-3;
+/// The most a derivative gain may take per tick from the velocity of the inertia it acts on:
+/// kd_i dt / m_eff_i, and dt lambda_max(M^-1 Kd) over the coupled modes. An explicit velocity
+/// loop flips sign every tick above 1 and is unstable above 2 (the velocity belief's lag
+/// narrows that further).
+const DAMPING_PER_TICK: f64 = 0.5;
+/// The most a proportional gain may turn per tick: sqrt(kp_i / m_eff_i) dt, and
+/// dt sqrt(lambda_max(M^-1 Kp)).
+const STIFFNESS_PER_TICK: f64 = 0.1;
 
 fn fmt_list(v: &[f64]) -> String {
     let items: Vec<String> = v.iter().map(|x| format_number(*x)).collect();
@@ -217,12 +234,27 @@ fn gains_from_dynamics(model: &Arc<ArmModel>, poses: &Poses) -> Gains {
     let mut m_diag = vec![0.0f64; n];
     let mut m_max = vec![0.0f64; n];
     let mut g_max = vec![0.0f64; n];
+    // The smallest effective inertia 1 / (M^-1)_ii seen: what joint i's torque moves when the
+    // other joints are free (on coaxial or nearly coaxial joints far below M_ii).
+    let mut m_eff = vec![f64::INFINITY; n];
+    let mut inverses = Vec::new();
     for q in [&poses.q0, &poses.t1, &poses.t2] {
         let (m, g) = dynamics.mass_matrix_and_gravity(q);
         for i in 0..n {
             m_diag[i] = m_diag[i].max(m[(i, i)]);
             m_max[i] = m_max[i].max((0..n).map(|j| m[(i, j)].abs()).sum::<f64>());
             g_max[i] = g_max[i].max(g[i].abs());
+        }
+        if let Some(inv) = m.clone().cholesky().map(|c| c.inverse()) {
+            for i in 0..n {
+                m_eff[i] = m_eff[i].min(1.0 / inv[(i, i)].max(1e-300));
+            }
+            inverses.push(inv);
+        }
+    }
+    for i in 0..n {
+        if !m_eff[i].is_finite() {
+            m_eff[i] = m_diag[i];
         }
     }
     let (mut kp, mut kd, mut ki, mut ilim) =
@@ -241,12 +273,39 @@ fn gains_from_dynamics(model: &Arc<ArmModel>, poses: &Poses) -> Gains {
         if let Some(e) = j.effort {
             kp[i] = kp[i].min(e / ERROR_SPAN);
         }
-        kd[i] = (2.0 * ZETA * (kp[i] * m).sqrt() - d).max(0.0);
+        // Discrete-time limits on the inertia the joint's torque actually moves.
+        let m_eff_i = m_eff[i].max(1e-9);
+        kp[i] = kp[i].min((STIFFNESS_PER_TICK / DT).powi(2) * m_eff_i);
+        kd[i] = (2.0 * ZETA * (kp[i] * m).sqrt() - d)
+            .max(0.0)
+            .min(DAMPING_PER_TICK * m_eff_i / DT);
         ki[i] = kp[i] * w / 8.0;
         let limit = (1.5 * g_max[i]).max(1.0);
         ilim[i] = j.effort.map_or(limit, |e| limit.min(e));
         // The joint alone answers a step with its own inertia.
         accel = accel.max(kp[i] * STEP / m_diag[i].max(1e-6));
+    }
+    // The coupled modes: lambda_max(M^-1 K) = lambda_max(K^1/2 M^-1 K^1/2) at every pose; both
+    // gain vectors scaled down together where a mode exceeds its per-tick limit.
+    let largest_mode = |k: &[f64]| -> f64 {
+        inverses
+            .iter()
+            .map(|inv| {
+                let s = nalgebra::DMatrix::from_fn(n, n, |a, b| (k[a] * k[b]).sqrt() * inv[(a, b)]);
+                s.symmetric_eigenvalues().max()
+            })
+            .fold(0.0, f64::max)
+    };
+    let damping = DT * largest_mode(&kd);
+    if damping > DAMPING_PER_TICK {
+        let f = DAMPING_PER_TICK / damping;
+        kd.iter_mut().for_each(|k| *k *= f);
+    }
+    let stiffness = DT * largest_mode(&kp).sqrt();
+    if stiffness > STIFFNESS_PER_TICK {
+        let f = (STIFFNESS_PER_TICK / stiffness).powi(2);
+        kp.iter_mut().for_each(|k| *k *= f);
+        ki.iter_mut().for_each(|k| *k *= f);
     }
     let acceleration_bound = accel.max(crate::estimation::uaic::DEFAULT_ACCELERATION_BOUND);
     Gains {
@@ -366,7 +425,7 @@ fn scenario_value(
             model.name
         ),
         duration: 15.0,
-        dt: 1e-3,
+        dt: DT,
         seed: 1,
         record_every: 1,
         robot: RobotConfig {
@@ -653,6 +712,56 @@ fn prune(table: &mut toml_edit::Table, defaults: &toml_edit::Table, prefix: &str
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// On arms nobody tuned for (generated, 2-7 joints), the gains keep every joint's and every
+    /// coupled mode's per-tick turn within the limits, at every pose the gains were taken from.
+    #[test]
+    fn gains_respect_the_discrete_time_limits_on_generated_arms() {
+        use crate::arm::generate::{GenerateOptions, generate_arm};
+        for seed in 100..120 {
+            let text = generate_arm(&GenerateOptions {
+                seed,
+                joints: (2, 7),
+            })
+            .unwrap();
+            let model =
+                Arc::new(crate::arm::parse_urdf(&text, Path::new("generated.urdf")).unwrap());
+            let n = model.joints.len();
+            let poses = start_and_targets(&model);
+            let g = gains_from_dynamics(&model, &poses);
+            let mut dynamics = Dynamics::new(model.clone(), [0.0, 0.0, -9.81]);
+            for q in [&poses.q0, &poses.t1, &poses.t2] {
+                let (m, _) = dynamics.mass_matrix_and_gravity(q);
+                let inv = m.clone().cholesky().unwrap().inverse();
+                for i in 0..n {
+                    let m_eff = 1.0 / inv[(i, i)];
+                    assert!(g.kd[i] * DT / m_eff <= DAMPING_PER_TICK * (1.0 + 1e-9));
+                    assert!((g.kp[i] / m_eff).sqrt() * DT <= STIFFNESS_PER_TICK * (1.0 + 1e-9));
+                }
+                // The coupled modes, by the eigenvalues of M^-1 K directly (not symmetrised).
+                let largest = |k: &[f64]| {
+                    let gains =
+                        nalgebra::DMatrix::from_diagonal(&nalgebra::DVector::from_column_slice(k));
+                    (&inv * gains)
+                        .complex_eigenvalues()
+                        .iter()
+                        .map(|c| c.re)
+                        .fold(0.0, f64::max)
+                };
+                let damping = largest(&g.kd) * DT;
+                let stiffness = largest(&g.kp).sqrt() * DT;
+                assert!(
+                    damping <= DAMPING_PER_TICK * (1.0 + 1e-6),
+                    "seed {seed}: {damping}"
+                );
+                assert!(
+                    stiffness <= STIFFNESS_PER_TICK * (1.0 + 1e-6),
+                    "seed {seed}: {stiffness}"
+                );
+            }
+            assert!(g.kp.iter().chain(&g.kd).all(|v| v.is_finite() && *v >= 0.0));
+        }
+    }
 
     #[test]
     fn numbers_are_toml_floats_with_four_digits() {
