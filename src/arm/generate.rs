@@ -20,7 +20,8 @@
 //!   (1 in 2) or uniform in [0, 5] % of the joint's effort limit;
 //! - effort limits: the largest gravity torque over 200 random configurations times a margin
 //!   uniform in [1.5, 4], plus the torque that accelerates the joint's largest inertia seen at
-//!   5 rad/s^2, at least 0.1 N m;
+//!   5 rad/s^2, plus the damping torque at 1 rad/s, at least 0.1 N m (without the damping term
+//!   a joint of damping 90 N m s/rad under a 0.1 N m motor moved at 1 mrad/s);
 //! - position limits of a revolute joint: lower uniform in [-pi, -0.5], upper in [0.5, pi];
 //! - an `ee` link fixed at the tip of the last link; a cylinder collider per link.
 
@@ -300,6 +301,10 @@ fn urdf_text(name: &str, joints: &[Joint], links: &[Link], effort: Option<&[f64]
     out
 }
 
+/// The speed (rad/s) every generated joint's effort can hold against its own viscous damping: a
+/// motor that cannot turn its joint faster than a few mrad/s is no arm anyone builds.
+const DRIVEN_SPEED: f64 = 1.0;
+
 /// The effort limits of a drawn arm (docs at the top): from its model's gravity torques and
 /// inertias over 200 random configurations within its limits.
 fn efforts(model: &super::ArmModel, seed: u64, margins: &[f64]) -> Vec<f64> {
@@ -324,7 +329,10 @@ fn efforts(model: &super::ArmModel, seed: u64, margins: &[f64]) -> Vec<f64> {
         }
     }
     (0..n)
-        .map(|i| (margins[i] * g_max[i] + 5.0 * m_max[i]).max(0.1))
+        .map(|i| {
+            (margins[i] * g_max[i] + 5.0 * m_max[i] + model.joints[i].damping * DRIVEN_SPEED)
+                .max(0.1)
+        })
         .collect()
 }
 

@@ -31,6 +31,8 @@ pub enum Command {
     Bench(BenchArgs),
     /// Write a healthy scenario for any serial URDF arm, every value derived from the arm.
     Init(InitArgs),
+    /// Write a random serial arm (URDF) drawn from a seed: arms nobody tuned for, to test methods on.
+    GenArm(GenArmArgs),
     /// Run a fault campaign (every fault, channel, arm and method) and write its matrix.
     Campaign(CampaignArgs),
     /// Merge the shards of a campaign into the files of the whole campaign.
@@ -117,6 +119,43 @@ pub struct InitArgs {
     /// Replace an existing file.
     #[arg(long)]
     pub force: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct GenArmArgs {
+    /// The seed: the same seed gives the same arm, byte for byte.
+    #[arg(long)]
+    pub seed: u64,
+    /// Fewest and most joints, e.g. `2..7` or `7` (at most 12).
+    #[arg(long, default_value = "2..7", value_parser = parse_joint_range)]
+    pub joints: (usize, usize),
+    /// The URDF file to write (default: stdout).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Replace an existing file.
+    #[arg(long)]
+    pub force: bool,
+}
+
+/// `A..B` or `A` (inclusive).
+fn parse_joint_range(text: &str) -> Result<(usize, usize), String> {
+    let number = |s: &str| {
+        s.trim()
+            .parse::<usize>()
+            .map_err(|_| format!("`{text}`: expected a joint count or a range such as 2..7"))
+    };
+    let (lo, hi) = match text.split_once("..") {
+        Some((a, b)) => (number(a)?, number(b.trim_start_matches('='))?),
+        None => {
+            let n = number(text)?;
+            (n, n)
+        }
+    };
+    let most = aift::arm::generate::MAX_GENERATED_JOINTS;
+    if lo < 1 || lo > hi || hi > most {
+        return Err(format!("`{text}`: need 1 <= fewest <= most <= {most}"));
+    }
+    Ok((lo, hi))
 }
 
 /// The scenario and overrides every scenario command takes.

@@ -15,8 +15,8 @@ use aift::scenario::campaign::{Campaign, CampaignRecords, CampaignRun, Shard};
 use aift::scenario::{self, LoadedScenario, Method, RunSetup, calibrate, table};
 
 use crate::args::{
-    BenchArgs, CalibrateArgs, CampaignArgs, CheckUrdfArgs, Cli, Command, InitArgs, MergeArgs,
-    RunArgs, ScenarioArgs, SimulateArgs, TableArgs, TrainGpArgs,
+    BenchArgs, CalibrateArgs, CampaignArgs, CheckUrdfArgs, Cli, Command, GenArmArgs, InitArgs,
+    MergeArgs, RunArgs, ScenarioArgs, SimulateArgs, TableArgs, TrainGpArgs,
 };
 
 /// A line for people: on stdout, or on stderr when `--json` keeps stdout for one JSON document.
@@ -94,6 +94,7 @@ pub fn dispatch(cli: Cli) -> Result<(), Failure> {
         .unwrap_or_else(|| Command::Run(RunArgs::default()))
     {
         Command::CheckUrdf(args) => check_urdf(args),
+        Command::GenArm(args) => gen_arm(args),
         Command::Simulate(args) => simulate(args),
         Command::Run(args) => run(args),
         Command::Table(args) => table(args),
@@ -300,6 +301,33 @@ fn merge(args: MergeArgs) -> Result<(), Failure> {
         merged.runs.len() + merged.reaching.len(),
         merged.campaign,
         args.out.display()
+    );
+    Ok(())
+}
+
+fn gen_arm(args: GenArmArgs) -> Result<(), Failure> {
+    let text = aift::arm::generate_arm(&aift::arm::GenerateOptions {
+        seed: args.seed,
+        joints: args.joints,
+    })
+    .map_err(bad_input)?;
+    let Some(out) = args.out else {
+        print!("{text}");
+        return Ok(());
+    };
+    if out.exists() && !args.force {
+        return Err(bad_input(anyhow!(
+            "{} exists; pass --force to replace it",
+            out.display()
+        )));
+    }
+    let staged = stage(&out, OutputKind::File, true)?;
+    staged.commit_bytes(text.as_bytes()).map_err(file_failure)?;
+    eprintln!(
+        "wrote {} (seed {}); next: `aift init --urdf {} --out SCENARIO.toml`",
+        out.display(),
+        args.seed,
+        out.display()
     );
     Ok(())
 }
