@@ -127,7 +127,7 @@ pub struct GenArmArgs {
     #[arg(long)]
     pub seed: u64,
     /// Fewest and most joints, e.g. `2..7` or `7` (at most 12).
-    #[arg(long, default_value = "2..7", value_parser = parse_joint_range)]
+    #[arg(long, visible_alias = "dof", default_value = "2..7", value_parser = parse_joint_range)]
     pub joints: (usize, usize),
     /// The URDF file to write (default: stdout).
     #[arg(long)]
