@@ -294,6 +294,42 @@ fn a_massless_link_with_an_inertia_is_warned_about() {
     );
 }
 
+/// A maintained description's tool frame: 1e-9 kg and an all-zero inertia on a fixed joint. It is
+/// a point mass merged into the body it is fixed to (a warning names it); a moving body of point
+/// masses alone has no rotational inertia and is refused, naming its link.
+#[test]
+fn a_point_mass_frame_merges_and_a_moving_point_mass_is_refused() {
+    let frame = r#"<link name="flange"><inertial><origin xyz="0.2 0 0"/><mass value="1e-9"/><inertia ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"/></inertial></link>"#;
+    let fixed = r#"<joint name="jf" type="fixed"><parent link="b"/><child link="flange"/><origin xyz="1 0 0"/></joint>"#;
+    let text = good().replacen("</robot>", &format!("{frame}{fixed}</robot>"), 1);
+    let m = parse(&text).unwrap();
+    let plain = parse(&good()).unwrap();
+    assert_eq!(m.joints.len(), 2);
+    assert!(
+        m.warnings
+            .iter()
+            .any(|w| w.contains("flange") && w.contains("point mass")),
+        "{:?}",
+        m.warnings
+    );
+    assert!((m.bodies[2].mass - plain.bodies[2].mass - 1e-9).abs() < 1e-15);
+    // The same point mass as a moving link of its own.
+    let moving = good().replacen(
+        r#"<mass value="1"/>
+        <inertia ixx="0.01" ixy="0" ixz="0" iyy="0.1" iyz="0" izz="0.1"/>"#,
+        r#"<mass value="1e-9"/><inertia ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"/>"#,
+        1,
+    );
+    assert_ne!(moving, good(), "the test edits the first link");
+    match parse(&moving) {
+        Err(e @ PlantError::BadInertia { .. }) => {
+            let msg = e.to_string();
+            assert!(msg.contains("'a'") && msg.contains("point masses"), "{msg}");
+        }
+        other => panic!("expected BadInertia, got {:?}", other.map(|m| m.name)),
+    }
+}
+
 /// The triangle inequality: refused with a message naming the option; with the option, the
 /// middle principal moment is raised just enough and the link is named in a warning.
 #[test]

@@ -699,6 +699,15 @@ fn mass_properties(
                 link: robot.links[body_top[b]].name.clone(),
             });
         }
+        if b > 0 && inertia.symmetric_eigenvalues().min() <= 0.0 {
+            return Err(ArmError::BadInertia {
+                path: p(),
+                link: robot.links[body_top[b]].name.clone(),
+                reason: "has no rotational inertia: the moving body it heads (with the links \
+                         fixed to it) is made of point masses alone"
+                    .to_string(),
+            });
+        }
         bodies.push(BodySpec {
             link: robot.links[body_top[b]].name.clone(),
             mass,
@@ -749,8 +758,21 @@ fn link_inertia(
             i.ixy, i.iyy, i.iyz, //
             i.ixz, i.iyz, i.izz,
         );
-        let (tensor, warning) = check_inertia(&tensor, &link.name, path, options.balance_inertia)?;
-        warnings.extend(warning);
+        // A mass with an all-zero tensor is a point mass (maintained descriptions give tool and
+        // flange frames 1e-9 kg and no inertia): its parallel-axis terms count where it merges;
+        // a moving body made of point masses alone is refused below.
+        let tensor = if tensor == Matrix3::zeros() {
+            warnings.push(format!(
+                "link '{}': mass {mass:e} kg with a zero inertia: taken as a point mass",
+                link.name
+            ));
+            tensor
+        } else {
+            let (tensor, warning) =
+                check_inertia(&tensor, &link.name, path, options.balance_inertia)?;
+            warnings.extend(warning);
+            tensor
+        };
         let frame = pose * isometry(&inertial.origin);
         let rot = frame.rotation.to_rotation_matrix();
         let rotated = rot.matrix() * tensor * rot.matrix().transpose();
