@@ -211,3 +211,32 @@ fn init_gains_are_stable_in_discrete_time_on_a_light_coupled_roll_joint() {
         );
     }
 }
+
+/// What no gain can fix is refused before anything is written: a shoulder whose effort limit is
+/// below the gravity torque it must hold at the start or a target; the message names the URDF,
+/// the joint and the two torques; exit 2; no scenario file.
+#[test]
+fn init_refuses_a_joint_too_weak_to_hold_its_load_naming_it() {
+    let tmp = tempfile::tempdir().unwrap();
+    let text = std::fs::read_to_string(common::repo("tests/data/coaxial_wrist.urdf")).unwrap();
+    let weak = text.replacen(r#"effort="80""#, r#"effort="0.5""#, 1);
+    assert_ne!(weak, text);
+    let urdf = tmp.path().join("weak.urdf");
+    std::fs::write(&urdf, weak).unwrap();
+    let out = tmp.path().join("weak.toml");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_aift"))
+        .args(["init", "--urdf"])
+        .arg(&urdf)
+        .args(["--ee", "hand", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("weak.urdf") && err.contains("joint 'shoulder' <limit effort>"),
+        "{err}"
+    );
+    assert!(err.contains("gravity torque"), "{err}");
+    assert!(!out.exists());
+}

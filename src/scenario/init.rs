@@ -155,6 +155,20 @@ pub fn init_scenario(urdf: &Path, options: &InitOptions) -> Result<String, Scena
     let n = model.joints.len();
     let poses = start_and_targets(&model);
     let gains = gains_from_dynamics(&model, &poses);
+    // What no gain can fix: a motor weaker than the gravity torque it must hold.
+    for (j, g) in model.joints.iter().zip(&gains.g_max) {
+        if let Some(e) = j.effort.filter(|e| g > e) {
+            return Err(ScenarioError::Invalid {
+                path: urdf.to_path_buf(),
+                field: format!("joint '{}' <limit effort>", j.name),
+                message: format!(
+                    "{e} N m is below the gravity torque of {g:.4} N m the joint must hold at \
+                     the start or a target; init cannot write a scenario that reaches them \
+                     (raise the effort limit, or lighten the links it carries)"
+                ),
+            });
+        }
+    }
     let view = place_camera(&model, &end_effector, &poses);
     let scenario = scenario_value(options, &model, &ee, &poses, &gains, view.config);
     // What init writes must load: checked against the arm before it is written.
