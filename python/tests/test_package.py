@@ -254,15 +254,20 @@ def test_an_interrupted_run_leaves_no_folder(tmp_path):
     import os
     import signal
 
-    # 3000 s of simulated time (many seconds of wall time on any machine): the SIGINT at 0.5 s
-    # always lands mid-run (with 300 s it once did not, in a full CI run: not reproduced alone).
-    sc = aift.Scenario.default(["duration=3000.0", "plant.engine=\"articulated\""])
+    # A process started in the background by a non-interactive shell inherits SIGINT ignored,
+    # and Python then installs no handler: Ctrl-C's handler is set here, as an interactive
+    # session has it (without this, the test failed under `tools/test.sh &`).
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    sc = aift.Scenario.default(["duration=300.0", "plant.engine=\"articulated\""])
     aift.run(sc.copy().set("duration", 0.1), method="no-ft")  # the GP trained, the cache warm
     timer = threading.Timer(0.5, lambda: os.kill(os.getpid(), signal.SIGINT))
     timer.start()
-    with pytest.raises(KeyboardInterrupt):
-        aift.run(sc, method="no-ft", out=tmp_path / "run", trajectory=False)
-    timer.cancel()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            aift.run(sc, method="no-ft", out=tmp_path / "run", trajectory=False)
+    finally:
+        timer.cancel()
+        signal.signal(signal.SIGINT, previous)
     assert not (tmp_path / "run").exists()
     assert [p.name for p in tmp_path.iterdir()] == []
 
