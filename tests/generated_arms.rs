@@ -4,16 +4,7 @@
 
 mod common;
 
-use std::path::Path;
-use std::process::{Command, Output};
-
-fn aift(args: &[&str], dir: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_aift"))
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .unwrap()
-}
+use common::aift_in as aift;
 
 #[test]
 fn the_same_seed_gives_the_same_arm_and_the_joint_count_asked_for() {
