@@ -101,6 +101,9 @@ fn kind_of(meta: &std::fs::Metadata) -> &'static str {
             return "a socket";
         }
     }
+    if meta.file_type().is_symlink() {
+        return "a symbolic link";
+    }
     if meta.is_dir() {
         "a folder"
     } else {
@@ -180,8 +183,36 @@ pub fn read_text(path: &Path, limit: u64) -> Result<String, FsError> {
     })
 }
 
-/// Writes `bytes` to `path` atomically (temporary file in the same folder, then rename).
+/// An existing file output must be a regular file: outputs are moved into place by a rename,
+/// which would replace a device, a FIFO, a socket or a symbolic link (as root, `--out /dev/null`
+/// would leave /dev/null an empty regular file). Such targets are refused, not streamed to.
+fn check_file_output(target: &Path) -> Result<(), FsError> {
+    match std::fs::symlink_metadata(target) {
+        Ok(meta) if meta.is_file() => Ok(()),
+        Ok(meta) if meta.is_dir() => Err(FsError::BadOutput {
+            path: target.to_path_buf(),
+            message: "is a folder; a file is expected".into(),
+        }),
+        Ok(meta) => Err(FsError::BadOutput {
+            path: target.to_path_buf(),
+            message: format!(
+                "is {}; aift writes an output whole and moves it into place with a rename, \
+                 which would replace it: give a regular file or a new path",
+                kind_of(&meta)
+            ),
+        }),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
+        Err(e) => Err(FsError::BadOutput {
+            path: target.to_path_buf(),
+            message: format!("cannot inspect it: {e}"),
+        }),
+    }
+}
+
+/// Writes `bytes` to `path` atomically (temporary file in the same folder, then rename); an
+/// existing `path` must be a regular file.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), FsError> {
+    check_file_output(path)?;
     let err = |source| FsError::Write {
         path: path.to_path_buf(),
         source,
@@ -333,6 +364,25 @@ impl Staged {
         if name.to_string_lossy().starts_with('.') && name.to_string_lossy().contains(".aift-") {
             return Err(bad("is a name aift uses for its own staging".into()));
         }
+        // Devices, FIFOs, sockets and links are refused before anything is created beside them.
+        match kind {
+            OutputKind::File => {
+                if target.as_os_str().as_encoded_bytes().ends_with(b"/") {
+                    return Err(bad("ends in `/`; a file is expected".into()));
+                }
+                check_file_output(target)?
+            }
+            OutputKind::Folder => {
+                if let Ok(meta) = std::fs::symlink_metadata(target)
+                    && !meta.is_dir()
+                {
+                    return Err(bad(format!(
+                        "exists and is {}, not a folder",
+                        kind_of(&meta)
+                    )));
+                }
+            }
+        }
         let parent = parent_of(target);
         if let Ok(meta) = std::fs::metadata(&parent)
             && !meta.is_dir()
@@ -365,11 +415,7 @@ impl Staged {
                         }
                     }
                 }
-                OutputKind::File => {
-                    if meta.is_dir() {
-                        return Err(bad("is a folder; a file is expected".into()));
-                    }
-                }
+                OutputKind::File => check_file_output(target)?,
             },
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
             Err(e) => return Err(bad(format!("cannot inspect it: {e}"))),
@@ -380,11 +426,22 @@ impl Staged {
             OutputKind::Folder => std::fs::create_dir(&temp),
             OutputKind::File => File::create(&temp).map(|_| ()),
         };
-        created.map_err(|e| bad(format!("cannot write in {}: {e}", parent.display())))?;
+        // A full disk is the machine's fault (exit 1), a folder the user cannot write theirs.
+        let staging_error = |e: std::io::Error| {
+            if machine_fault(&e) {
+                FsError::Write {
+                    path: target.to_path_buf(),
+                    source: e,
+                }
+            } else {
+                bad(format!("cannot write in {}: {e}", parent.display()))
+            }
+        };
+        created.map_err(staging_error)?;
         if kind == OutputKind::Folder {
             std::fs::write(temp.join(OUTPUT_MARKER), b"aift output folder\n").map_err(|e| {
                 let _ = std::fs::remove_dir_all(&temp);
-                bad(format!("cannot write in {}: {e}", parent.display()))
+                staging_error(e)
             })?;
         }
         Ok(Self {
@@ -457,6 +514,15 @@ impl Drop for Staged {
             };
         }
     }
+}
+
+/// Errors of the machine rather than of the path given: a full disk, an exceeded quota, an I/O
+/// error.
+fn machine_fault(e: &std::io::Error) -> bool {
+    matches!(
+        e.kind(),
+        std::io::ErrorKind::StorageFull | std::io::ErrorKind::QuotaExceeded
+    ) || e.raw_os_error() == Some(libc::EIO)
 }
 
 /// Flushes every file of a staged output to disk before it is moved into place.

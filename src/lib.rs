@@ -5,6 +5,22 @@
 //! [`estimation`] (the u-AIC and classical estimators) and [`control`] (f*, action) ->
 //! [`precision`] learners and detectors -> [`scenario`] runner, metrics, tables -> [`report`].
 //! [`fsio`] (bounded reads, atomic and staged writes) sits below them all.
+//!
+//! A run in a few lines, what `aift run` does without writing files (the embedded default
+//! scenario: the paper's arm, joint 1's encoder freezing at 8 s; shortened here):
+//!
+//! ```
+//! use aift::scenario::{LoadedScenario, Method, RunSetup, runner::Run};
+//!
+//! let loaded = LoadedScenario::embedded_default(&["duration=1.0".to_string()])?;
+//! let setup = RunSetup::prepare(loaded)?; // loads the URDF, trains the camera GP
+//! let result = Run::new(&setup, Method::PlAlways).seed(2).execute()?;
+//! assert_eq!(result.outcome.name(), "completed");
+//! println!("belief MSE per joint {:?}", result.mse_per_joint);
+//! # Ok::<(), aift::scenario::ScenarioError>(())
+//! ```
+//!
+//! `examples/` has the rest: a run folder, a Monte Carlo table, a u-AIC fed by hand.
 
 pub mod arm;
 pub mod control;

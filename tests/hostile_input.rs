@@ -416,3 +416,188 @@ fn a_calibration_is_accepted_whatever_alpha_isolation_or_test() {
         "r2",
     );
 }
+
+/// The file type of `path` without following a link: (is_fifo, is_symlink, is_char_device).
+fn file_type(path: &Path) -> (bool, bool, bool) {
+    use std::os::unix::fs::FileTypeExt;
+    let t = std::fs::symlink_metadata(path).unwrap().file_type();
+    (t.is_fifo(), t.is_symlink(), t.is_char_device())
+}
+
+#[test]
+fn outputs_never_replace_devices_fifos_or_links() {
+    // Issue 30, class 1: as root, the atomic rename replaced /dev/null with an empty file. The
+    // targets here are the test's own: a FIFO, a link to /dev/null and, where the test may create
+    // one, a character device (the null device) in a temporary folder.
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let mut targets = Vec::new();
+    let fifo = d.join("fifo");
+    let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
+    // SAFETY: creates a FIFO in our temporary folder.
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+    targets.push(fifo);
+    let link = d.join("link");
+    std::os::unix::fs::symlink("/dev/null", &link).unwrap();
+    targets.push(link);
+    let dev = d.join("null-device");
+    let c = std::ffi::CString::new(dev.to_str().unwrap()).unwrap();
+    // SAFETY: creates a device node for the null device (1, 3) in our temporary folder; only
+    // root may, and then it is tested too.
+    if unsafe { libc::mknod(c.as_ptr(), libc::S_IFCHR | 0o600, libc::makedev(1, 3)) } == 0 {
+        targets.push(dev);
+    }
+    let urdf = common::repo("urdf/planar_2dof.urdf");
+    let urdf = urdf.to_str().unwrap();
+    let healthy = scenario("paper_healthy.toml");
+    for target in &targets {
+        let before = file_type(target);
+        let t = target.to_str().unwrap();
+        let commands: Vec<Vec<&str>> = vec![
+            vec!["calibrate", &healthy, "--runs", "2", "--out", t],
+            vec!["train-gp", &healthy, "--out", t],
+            vec![
+                "simulate",
+                "--urdf",
+                urdf,
+                "--ee",
+                "ee",
+                "--q0",
+                "0,0",
+                "--duration",
+                "0.01",
+                "--out",
+                t,
+            ],
+            vec!["init", "--urdf", urdf, "--out", t, "--force"],
+            vec!["gen-arm", "--seed", "3", "--out", t, "--force"],
+            vec!["run", &healthy, "--out", t, "--force"],
+        ];
+        for args in commands {
+            let o = aift(&args, d);
+            let stderr = String::from_utf8_lossy(&o.stderr);
+            assert_eq!(o.status.code(), Some(2), "{args:?}: {stderr}");
+            assert!(stderr.contains(t), "{args:?}: {stderr}");
+            assert_eq!(file_type(target), before, "{args:?} replaced {t}");
+        }
+    }
+    // Nothing was left beside them (staging, locks).
+    let left: Vec<_> = std::fs::read_dir(d)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.contains(".aift-"))
+        .collect();
+    assert!(left.is_empty(), "{left:?}");
+}
+
+/// Runs aift with its stdout the write end of a pipe whose read end is already closed.
+fn with_closed_stdout(args: &[&str], dir: &Path) -> std::process::Output {
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    std::process::Command::new(env!("CARGO_BIN_EXE_aift"))
+        .args(args)
+        .current_dir(dir)
+        .env("AIFT_CACHE_DIR", "off")
+        .stdout(writer)
+        .stderr(std::process::Stdio::piped())
+        .output()
+        .unwrap()
+}
+
+#[test]
+fn a_closed_pipe_ends_the_output_and_a_full_one_is_an_error_never_a_panic() {
+    // Issue 30, class 4.
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let urdf = common::repo("urdf/panda_7dof.urdf");
+    let urdf = urdf.to_str().unwrap();
+    let healthy = scenario("paper_healthy.toml");
+    let short = "duration=0.5";
+    let quick: Vec<Vec<&str>> = vec![
+        vec!["check-urdf", urdf],
+        vec!["check-urdf", urdf, "--json"],
+        vec!["schema"],
+        vec!["schema", "--markdown"],
+        vec!["completions", "bash"],
+        vec!["gen-arm", "--seed", "5"],
+        vec!["--help"],
+    ];
+    for args in &quick {
+        let o = with_closed_stdout(args, d);
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(0), "{args:?}: {stderr}");
+        assert!(!stderr.contains("panicked"), "{args:?}: {stderr}");
+    }
+    // Work that writes files finishes them though nobody reads its lines.
+    let o = with_closed_stdout(
+        &["run", &healthy, "--set", short, "--out", "r", "--json"],
+        d,
+    );
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(d.join("r/summary.json").is_file());
+    let o = with_closed_stdout(
+        &[
+            "table",
+            &healthy,
+            "--set",
+            short,
+            "--seeds",
+            "1",
+            "--methods",
+            "no-ft",
+            "--out",
+            "t",
+        ],
+        d,
+    );
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(d.join("t/table.json").is_file());
+
+    // A full stdout is a write error: exit 1 naming stdout, never a panic; a full stderr is
+    // ignored (the exit code still tells).
+    if Path::new("/dev/full").exists() {
+        let full = || {
+            std::fs::OpenOptions::new()
+                .write(true)
+                .open("/dev/full")
+                .unwrap()
+        };
+        for args in &quick[..5] {
+            let o = std::process::Command::new(env!("CARGO_BIN_EXE_aift"))
+                .args(args)
+                .current_dir(d)
+                .stdout(full())
+                .output()
+                .unwrap();
+            let stderr = String::from_utf8_lossy(&o.stderr);
+            assert_eq!(o.status.code(), Some(1), "{args:?}: {stderr}");
+            assert!(stderr.contains("writing to stdout"), "{args:?}: {stderr}");
+        }
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_aift"))
+            .args(["check-urdf", "missing.urdf"])
+            .current_dir(d)
+            .stderr(full())
+            .output()
+            .unwrap();
+        assert_eq!(o.status.code(), Some(2));
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_aift"))
+            .args(["run", &healthy, "--set", short, "--out", "r2"])
+            .current_dir(d)
+            .env("AIFT_CACHE_DIR", "off")
+            .stderr(full())
+            .output()
+            .unwrap();
+        assert_eq!(o.status.code(), Some(0));
+        assert!(d.join("r2/summary.json").is_file());
+    }
+}

@@ -23,6 +23,37 @@
     });
     ctx.restore();
   }
+  // Tick labels that stay distinct at any range: uPlot's default (the browser's number format,
+  // three decimals) prints 0.0012 and 0.0014 both as "0.001". Fixed decimals from the tick step
+  // for ordinary magnitudes, else scientific notation; more digits until no two labels agree.
+  function tickLabels(u, splits, axisIdx, space, incr) {
+    var shown = splits.filter(function (v) { return v != null; });
+    var big = shown.some(function (v) { return v !== 0 && (Math.abs(v) < 1e-3 || Math.abs(v) >= 1e5); });
+    function distinct(labels) {
+      var seen = {};
+      for (var i = 0; i < labels.length; i++) {
+        if (labels[i] === "") continue;
+        if (seen[labels[i]]) return false;
+        seen[labels[i]] = true;
+      }
+      return true;
+    }
+    var decimals = 0;
+    if (!big && incr > 0 && isFinite(incr)) {
+      decimals = Math.max(0, Math.ceil(-Math.log10(incr) - 1e-9));
+      while (decimals < 15 && Math.abs(Math.round(incr * Math.pow(10, decimals)) - incr * Math.pow(10, decimals)) > 1e-6) decimals += 1;
+    }
+    for (var extra = 0; extra < 16; extra++) {
+      var labels = splits.map(function (v) {
+        if (v == null) return "";
+        if (v === 0) return "0";
+        return big ? v.toExponential(extra) : v.toFixed(Math.min(decimals + extra, 20));
+      });
+      if (distinct(labels)) return labels;
+    }
+    return splits.map(function (v) { return v == null ? "" : String(v); });
+  }
+  window.aiftTickLabels = tickLabels;
   function draw(spec, data) {
     var el = document.getElementById(spec.id);
     var x = data.columns[data.x];
@@ -37,7 +68,7 @@
     var opts = {
       title: spec.title, width: width, height: spec.height || 260, series: series,
       scales: { x: { time: false }, y: spec.ylog ? { distr: 3 } : (spec.yrange ? { range: spec.yrange } : {}) },
-      axes: [{ label: "t (s)" }, { label: spec.ylabel || "" }],
+      axes: [{ label: "t (s)", values: tickLabels }, { label: spec.ylabel || "", values: tickLabels, size: 70 }],
       cursor: { drag: { x: true, y: false } },
       legend: { live: true },
       hooks: { draw: [function (u) { markFaults(u, data.faults || []); }] }

@@ -81,6 +81,7 @@ def test_report_draws_every_plot_offline(browser, folders, shots, kind, minimum)
     assert failed == 0
     assert drawn == expected >= minimum, (drawn, expected)
     assert (shots / f"{kind}.png").stat().st_size > 10_000
+    assert_distinct_tick_labels(page)
     if kind == "run":
         # Zoom: a drag across the first plot narrows its time axis.
         before = page.evaluate("[aiftPlots[0].scales.x.min, aiftPlots[0].scales.x.max]")
@@ -95,6 +96,14 @@ def test_report_draws_every_plot_offline(browser, folders, shots, kind, minimum)
         page.mouse.up()
         after = page.evaluate("[aiftPlots[0].scales.x.min, aiftPlots[0].scales.x.max]")
         assert after[1] - after[0] < 0.5 * (before[1] - before[0]), (before, after)
+        assert page.evaluate("aiftPlots.length") >= 6
+        assert_distinct_tick_labels(page)
+        # A narrow range on the belief-error axis (the default number format printed 0.0012 and
+        # 0.0014 both as "0.001"), and a range in 1e-6.
+        for lo, hi in [(0.001, 0.0018), (2e-6, 9e-6), (1.0001, 1.0003)]:
+            labels = page.evaluate(f"(() => {{ var p = aiftPlots[0]; p.setScale('y', {{min: {lo}, max: {hi}}}); return p.axes[1]._values; }})()")
+            shown = [v for v in labels if v]
+            assert len(shown) >= 2 and len(set(shown)) == len(shown), (lo, hi, labels)
         assert page.locator("pre").inner_text().startswith("# Resolved by aift")
     if kind == "campaign":
         # Links down to cells resolve to anchors on the page.
@@ -103,6 +112,14 @@ def test_report_draws_every_plot_offline(browser, folders, shots, kind, minimum)
         for h in hrefs:
             assert page.locator(h).count() == 1, h
     page.close()
+
+
+def assert_distinct_tick_labels(page):
+    """No axis of any zoomable plot on the page shows the same tick label twice."""
+    axes = page.evaluate("aiftPlots.flatMap(p => p.axes.map(a => a._values || []))")
+    for labels in axes:
+        shown = [v for v in labels if v]
+        assert len(set(shown)) == len(shown), labels
 
 
 def test_aift_report_rewrites_the_same_page(folders, aift_bin, tmp_path):

@@ -337,6 +337,15 @@ fn efforts(model: &super::ArmModel, seed: u64, margins: &[f64]) -> Vec<f64> {
 }
 
 /// A random serial arm as URDF text (docs at the top of this module).
+///
+/// ```
+/// use aift::arm::{GenerateOptions, generate_arm, parse_urdf};
+///
+/// let urdf = generate_arm(&GenerateOptions { seed: 7, joints: (3, 5) })?;
+/// let arm = parse_urdf(&urdf, std::path::Path::new("generated.urdf"))?;
+/// assert!((3..=5).contains(&arm.joints.len()));
+/// # Ok::<(), aift::arm::ArmError>(())
+/// ```
 pub fn generate_arm(options: &GenerateOptions) -> Result<String, ArmError> {
     let (lo, hi) = options.joints;
     if lo < 1 || lo > hi || hi > MAX_GENERATED_JOINTS {

@@ -36,6 +36,13 @@ pub struct UrdfOptions {
 }
 
 /// Reads and validates a URDF file.
+///
+/// ```
+/// let arm = aift::arm::load_urdf(std::path::Path::new("urdf/planar_2dof.urdf"))?;
+/// assert_eq!(arm.joints.len(), 2);
+/// assert!(arm.total_mass() > 0.0);
+/// # Ok::<(), aift::arm::ArmError>(())
+/// ```
 pub fn load_urdf(path: &Path) -> Result<ArmModel, ArmError> {
     load_urdf_with(path, &UrdfOptions::default())
 }

@@ -101,7 +101,9 @@ impl Engine {
 pub struct PlantSettings {
     /// `rapier` (default) or `articulated` (aift's own dynamics; docs/method.md, "Plant").
     pub engine: Engine,
+    /// Settings of the rapier engine.
     pub rapier: RapierSettings,
+    /// Settings of the articulated engine.
     pub articulated: ArticulatedSettings,
 }
 

@@ -54,7 +54,9 @@ pub const MAX_ALARMS: usize = 10_000;
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct DetectorConfig {
+    /// Chebyshev false-alarm bound per test: the threshold is sqrt(n / alpha) healthy spreads.
     pub alpha: f64,
+    /// Which channels an alarm drops: the largest normalised residual, or its whole group.
     pub isolation: Isolation,
     /// Half-width (ticks) of the window the per-step moments are pooled over.
     pub pool_ticks: usize,

@@ -19,6 +19,7 @@ use crate::sensors::{CameraConfig, ChannelLayout, FaultSpec, SensorConfig};
 pub struct Scenario {
     /// Short name (used for output folders).
     pub name: String,
+    /// Free text shown in reports.
     #[serde(default)]
     pub description: String,
     /// Run length (s).
@@ -32,6 +33,7 @@ pub struct Scenario {
     /// Ticks between trajectory rows (1: every tick).
     #[serde(default = "default_record_every")]
     pub record_every: u64,
+    /// The arm: URDF, end effector, gravity.
     pub robot: RobotConfig,
     /// The simulated arm's engine and its settings.
     #[serde(default)]
@@ -40,13 +42,17 @@ pub struct Scenario {
     /// run by default), and how much they trust it.
     #[serde(default)]
     pub model: ModelConfig,
+    /// The arm's state at t = 0.
     pub initial: InitialState,
     /// Set points: from `time` on, the target is `q`.
     pub targets: Vec<Target>,
+    /// Noise of the joint sensors.
     #[serde(default)]
     pub sensors: SensorConfig,
+    /// The virtual camera: pose, distortion, noise, occlusion.
     #[serde(default)]
     pub camera: CameraConfig,
+    /// The camera's Gaussian-process model.
     #[serde(default)]
     pub gp: GpConfig,
     /// The u-AIC's belief: its update, prediction and state prior.
@@ -55,8 +61,10 @@ pub struct Scenario {
     /// The control law f* and the action.
     #[serde(default)]
     pub controller: ControlConfig,
+    /// The precision method (`no-ft`, `pl-always`, `hybrid`, ...) and its parameters.
     #[serde(default)]
     pub precision: PrecisionConfig,
+    /// The fault detector of `pl-detect` and `deterministic`.
     #[serde(default)]
     pub detector: DetectorConfig,
     /// Settings of the Kalman-filter baselines (`ekf-gate`, `vb-akf`, `imm`).
@@ -65,6 +73,7 @@ pub struct Scenario {
     /// Settings of `hybrid`.
     #[serde(default)]
     pub hybrid: crate::estimation::hybrid::HybridConfig,
+    /// Sensor faults, any number, overlapping or not.
     #[serde(default)]
     pub faults: Vec<FaultSpec>,
 }
@@ -100,10 +109,13 @@ fn default_seed() -> u64 {
 pub struct RobotConfig {
     /// URDF path, relative to the scenario file.
     pub urdf: PathBuf,
+    /// The end-effector link (the point the camera sees).
     #[serde(default = "default_ee")]
     pub ee_link: String,
+    /// Offset (m) of the seen point from the end-effector link's origin, in that link's frame.
     #[serde(default)]
     pub ee_offset: [f64; 3],
+    /// Gravity in the world frame (m/s^2).
     #[serde(default = "default_gravity")]
     pub gravity: [f64; 3],
     /// Repair inertias that break the triangle inequality (see [`crate::arm::UrdfOptions`]).
@@ -132,6 +144,7 @@ fn default_gravity() -> [f64; 3] {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct InitialState {
+    /// Joint positions (rad or m), one per joint.
     pub q: Vec<f64>,
     /// Zeros when absent.
     #[serde(default)]
@@ -142,7 +155,9 @@ pub struct InitialState {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Target {
+    /// Time (s) from which this target holds.
     pub time: f64,
+    /// Joint positions, one per joint.
     pub q: Vec<f64>,
 }
 
@@ -224,6 +239,7 @@ impl GpConfig {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct PrecisionConfig {
+    /// The fault-tolerance method (see the values below).
     pub method: Method,
     /// Gradient step kappa_zeta (1/s) of `pl-always` and `pl-detect`.
     pub kappa_zeta: f64,

@@ -139,6 +139,22 @@ fn default_ee(model: &ArmModel) -> String {
 }
 
 /// Writes a healthy scenario for the arm in `urdf` (as TOML text with comments).
+///
+/// ```
+/// use std::path::Path;
+/// use aift::scenario::init::{InitOptions, init_scenario};
+///
+/// let options = InitOptions {
+///     ee_link: None,
+///     balance_inertia: false,
+///     urdf_in_scenario: "urdf/planar_3dof.urdf".into(),
+///     name: "planar3".into(),
+/// };
+/// let text = init_scenario(Path::new("urdf/planar_3dof.urdf"), &options)?;
+/// let scenario = aift::scenario::parse_scenario(&text, Path::new("planar3.toml"), &[])?;
+/// assert_eq!(scenario.initial.q.len(), 3);
+/// # Ok::<(), aift::scenario::ScenarioError>(())
+/// ```
 pub fn init_scenario(urdf: &Path, options: &InitOptions) -> Result<String, ScenarioError> {
     let model = crate::arm::load_urdf_with(
         urdf,

@@ -15,6 +15,7 @@ pub mod init;
 pub mod load;
 pub mod method;
 pub mod metrics;
+pub mod reference;
 pub mod runner;
 pub mod setup;
 pub mod table;
@@ -26,6 +27,7 @@ pub use config::{GpConfig, MAX_TICKS, PrecisionConfig, RobotConfig, Scenario, Ta
 pub use load::{DEFAULT_SCENARIO_NAME, Layer, LoadedScenario, parse_scenario, scenario_schema};
 pub use method::Method;
 pub use metrics::{ChatterMonitor, Chattering, FaultOutcome, RunMetrics, RunResult};
+pub use reference::scenario_reference_markdown;
 pub use runner::{
     DivergenceReason, NoObserver, Observer, ObserverMode, Observers, Outcome, Run, RunStart,
     Simulation, StopReason, TickRecord,

@@ -52,6 +52,18 @@ fn mean_std(values: &[f64]) -> (f64, f64) {
 }
 
 /// Runs every method in `methods` for every seed in `seeds`; `progress` is called after each run.
+///
+/// ```no_run
+/// use aift::scenario::{LoadedScenario, Method, RunSetup, calibrate, table};
+///
+/// let setup = RunSetup::prepare(LoadedScenario::embedded_default(&[])?)?;
+/// // the detector methods need a calibration on healthy runs
+/// let calibration = calibrate::calibrate(&setup, 50)?;
+/// let seeds: Vec<u64> = (1..=20).collect();
+/// let result = table::run_table(&setup, &Method::ALL, &seeds, Some(&calibration), &|| {})?;
+/// print!("{}", aift::report::table_files::table_markdown(&setup, &result));
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
 pub fn run_table(
     setup: &RunSetup,
     methods: &[Method],

@@ -26,19 +26,39 @@ pub enum FaultKind {
     /// The reading stays at its value at the fault's first tick (the paper's fault).
     Freeze {},
     /// A constant offset is added (the ECC camera fault is +0.04 m).
-    Bias { offset: f64 },
+    Bias {
+        /// Offset added to the reading, in the channel's unit (rad, rad/s, m).
+        offset: f64,
+    },
     /// An offset growing at `rate` per second from the start.
-    Drift { rate: f64 },
+    Drift {
+        /// Growth of the offset, in the channel's unit per second.
+        rate: f64,
+    },
     /// The reading is scaled by `factor`.
-    Gain { factor: f64 },
+    Gain {
+        /// Factor the reading is multiplied by.
+        factor: f64,
+    },
     /// The noise's standard deviation is multiplied by `factor`.
-    Noise { factor: f64 },
+    Noise {
+        /// Factor (>= 0) the noise's standard deviation is multiplied by.
+        factor: f64,
+    },
     /// The reading is missing.
     Dropout {},
     /// The reading is the constant `value`.
-    Stuck { value: f64 },
+    Stuck {
+        /// The constant reading, in the channel's unit.
+        value: f64,
+    },
     /// With `probability` per tick, an outlier of size `magnitude` (random sign) is added.
-    Spikes { probability: f64, magnitude: f64 },
+    Spikes {
+        /// Probability of an outlier per tick, in [0, 1].
+        probability: f64,
+        /// Size of an outlier, in the channel's unit.
+        magnitude: f64,
+    },
 }
 
 impl FaultKind {
@@ -126,6 +146,8 @@ impl From<&str> for ChannelSelection {
 /// A fault as written in a scenario file.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct FaultSpec {
+    /// The channels hit: a channel (`enc1`, `tach2`, `cam_u`), a group (`enc`, `tach`, `cam`)
+    /// or a list of them.
     pub channel: ChannelSelection,
     /// Start time (s).
     pub start: f64,

@@ -40,10 +40,19 @@ pub enum Command {
     /// Write report.html (a self-contained page: plots, tables, the scenario) into a run, table
     /// or campaign folder.
     Report(ReportArgs),
-    /// Print the scenario file's JSON Schema (for editors: validation and completion).
-    Schema,
+    /// Print the scenario file's JSON Schema (for editors: validation and completion), or with
+    /// `--markdown` its reference page (docs/scenario.md).
+    Schema(SchemaArgs),
     /// Print a shell completion script, e.g. `aift completions bash > ~/.local/share/bash-completion/completions/aift`.
     Completions(CompletionsArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct SchemaArgs {
+    /// Print the scenario reference as Markdown (every key, type, default and meaning) instead of
+    /// the JSON Schema.
+    #[arg(long)]
+    pub markdown: bool,
 }
 
 #[derive(Debug, Args)]

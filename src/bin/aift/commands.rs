@@ -23,9 +23,9 @@ use crate::args::{
 macro_rules! say {
     ($json:expr, $($arg:tt)*) => {
         if $json {
-            eprintln!($($arg)*)
+            errln!($($arg)*)
         } else {
-            println!($($arg)*)
+            outln!($($arg)*)
         }
     };
 }
@@ -34,7 +34,7 @@ macro_rules! say {
 fn print_json_file(path: &Path) -> Result<(), Failure> {
     let text =
         aift::fsio::read_text(path, aift::fsio::MAX_CALIBRATION_BYTES).map_err(file_failure)?;
-    println!("{}", text.trim_end());
+    outln!("{}", text.trim_end());
     Ok(())
 }
 
@@ -107,31 +107,33 @@ pub fn dispatch(cli: Cli) -> Result<(), Failure> {
         Command::Report(args) => {
             let (kind, path) = report::html::write_report(&args.dir).map_err(report_failure)?;
             if args.json {
-                println!(
+                outln!(
                     "{}",
                     serde_json::json!({"kind": kind.name(), "report": path})
                 );
             } else {
-                println!("wrote the {} report {}", kind.name(), path.display());
+                outln!("wrote the {} report {}", kind.name(), path.display());
             }
             Ok(())
         }
-        Command::Schema => {
-            let schema = scenario::scenario_schema();
-            println!(
-                "{}",
-                serde_json::to_string_pretty(&schema).expect("a schema serialises")
-            );
+        Command::Schema(args) => {
+            if args.markdown {
+                out!("{}", scenario::scenario_reference_markdown());
+            } else {
+                let schema = scenario::scenario_schema();
+                outln!(
+                    "{}",
+                    serde_json::to_string_pretty(&schema).expect("a schema serialises")
+                );
+            }
             Ok(())
         }
         Command::Completions(args) => {
             use clap::CommandFactory;
-            clap_complete::generate(
-                args.shell,
-                &mut Cli::command(),
-                "aift",
-                &mut std::io::stdout(),
-            );
+            // Into memory first: clap_complete panics when its writer fails.
+            let mut script = Vec::new();
+            clap_complete::generate(args.shell, &mut Cli::command(), "aift", &mut script);
+            crate::output::stdout_bytes(&script);
             Ok(())
         }
     }
@@ -169,7 +171,7 @@ fn campaign(args: CampaignArgs) -> Result<(), Failure> {
         .clone()
         .unwrap_or_else(|| PathBuf::from("campaigns").join(&config.name));
     let staged = stage(&dir, OutputKind::Folder, args.force)?;
-    eprintln!("preparing {} (arms, camera models)...", path.display());
+    errln!("preparing {} (arms, camera models)...", path.display());
     // --set applies to every arm's template last; the fingerprint covers each resolved
     // scenario, so shards with other overrides do not merge.
     let campaign = Campaign::from_config(config, &path, &args.set).map_err(bad_input)?;
@@ -212,7 +214,7 @@ fn campaign(args: CampaignArgs) -> Result<(), Failure> {
 /// What a campaign (or shard) will run, on stderr.
 fn describe_campaign(campaign: &Campaign, shard: Shard) {
     let jobs = campaign.jobs().len() + campaign.reaching_tasks().len();
-    eprintln!(
+    errln!(
         "{} cells x {} methods x {} seeds = {} runs{}{}",
         campaign.cells.len(),
         campaign.methods.len(),
@@ -283,7 +285,7 @@ fn print_campaign_json(dir: &Path, shard: Shard, records: &CampaignRecords) -> R
             "runs": records.runs.len() + records.reaching.len(),
             "records": dir.join(report::campaign_files::RECORDS),
         });
-        println!("{doc}");
+        outln!("{doc}");
     }
     Ok(())
 }
@@ -295,7 +297,7 @@ fn merge(args: MergeArgs) -> Result<(), Failure> {
     staged
         .commit()
         .map_err(|e| report_failure(ReportError::File(e)))?;
-    println!(
+    outln!(
         "merged {} shards ({} runs) of campaign {}; wrote {}/",
         args.shards.len(),
         merged.runs.len() + merged.reaching.len(),
@@ -312,7 +314,7 @@ fn gen_arm(args: GenArmArgs) -> Result<(), Failure> {
     })
     .map_err(bad_input)?;
     let Some(out) = args.out else {
-        print!("{text}");
+        out!("{text}");
         return Ok(());
     };
     if out.exists() && !args.force {
@@ -323,7 +325,7 @@ fn gen_arm(args: GenArmArgs) -> Result<(), Failure> {
     }
     let staged = stage(&out, OutputKind::File, true)?;
     staged.commit_bytes(text.as_bytes()).map_err(file_failure)?;
-    eprintln!(
+    errln!(
         "wrote {} (seed {}); next: `aift init --urdf {} --out SCENARIO.toml`",
         out.display(),
         args.seed,
@@ -333,13 +335,14 @@ fn gen_arm(args: GenArmArgs) -> Result<(), Failure> {
 }
 
 fn init(args: InitArgs) -> Result<(), Failure> {
+    // Refuses a folder, a device or a path ending in `/` before the question of --force.
+    let staged = stage(&args.out, OutputKind::File, true)?;
     if args.out.exists() && !args.force {
         return Err(bad_input(anyhow!(
             "{} exists; pass --force to replace it",
             args.out.display()
         )));
     }
-    let staged = stage(&args.out, OutputKind::File, true)?;
     // The scenario names its URDF relative to its own folder.
     let out_dir = args
         .out
@@ -372,7 +375,7 @@ fn init(args: InitArgs) -> Result<(), Failure> {
     )
     .map_err(bad_input)?;
     staged.commit_bytes(text.as_bytes()).map_err(file_failure)?;
-    println!(
+    outln!(
         "wrote {} for {}; run it with `aift run {}`",
         args.out.display(),
         args.urdf.display(),
@@ -423,10 +426,10 @@ fn scenario_failure(error: aift::scenario::ScenarioError, overrides: &[String]) 
 fn prepare(args: &ScenarioArgs) -> Result<RunSetup, Failure> {
     let setup = RunSetup::prepare(load(args)?).map_err(|e| scenario_failure(e, &args.set))?;
     for w in &setup.model.warnings {
-        eprintln!("warning: {}: {w}", setup.model.source.display());
+        errln!("warning: {}: {w}", setup.model.source.display());
     }
     for w in &setup.warnings {
-        eprintln!("warning: {}: {w}", setup.loaded.path.display());
+        errln!("warning: {}: {w}", setup.loaded.path.display());
     }
     Ok(setup)
 }
@@ -454,12 +457,12 @@ fn calibration_for(
     Ok(found.map(|(cal, origin)| {
         match origin {
             calibrate::CalibrationOrigin::File(_) => {}
-            calibrate::CalibrationOrigin::Cached(dir) => eprintln!(
+            calibrate::CalibrationOrigin::Cached(dir) => errln!(
                 "detector calibration ({runs} healthy runs) read from the cache in {}",
                 dir.display()
             ),
             calibrate::CalibrationOrigin::Computed { seconds } => {
-                eprintln!("calibrated the detector on {runs} healthy runs in {seconds:.1} s")
+                errln!("calibrated the detector on {runs} healthy runs in {seconds:.1} s")
             }
         }
         Arc::new(cal)
@@ -688,7 +691,7 @@ fn calibrate_cmd(args: CalibrateArgs) -> Result<(), Failure> {
     staged
         .commit_bytes(cal.to_json().as_bytes())
         .map_err(file_failure)?;
-    println!(
+    outln!(
         "calibrated {} on {runs} healthy runs ({} ticks) in {:.1} s; fingerprint {}; wrote {}",
         setup.scenario().name,
         cal.ticks,
@@ -710,7 +713,7 @@ fn calibrate_cmd(args: CalibrateArgs) -> Result<(), Failure> {
     )
     .map_err(bad_input)?;
     let alarms = check.runs.iter().filter(|r| r.false_alarm).count();
-    println!(
+    outln!(
         "false alarms on {} fresh healthy seeds: {alarms} ({:.0} %)",
         fresh.len(),
         100.0 * alarms as f64 / fresh.len() as f64
@@ -730,11 +733,12 @@ fn train_gp(args: TrainGpArgs) -> Result<(), Failure> {
         .commit_bytes(gp.to_json().as_bytes())
         .map_err(file_failure)?;
     let h = &gp.hyperparameters;
-    println!(
+    outln!(
         "trained the camera GP of {} on {points} points in {seconds:.2} s ({} likelihood evaluations)",
-        loaded.scenario.name, fit.evaluations
+        loaded.scenario.name,
+        fit.evaluations
     );
-    println!(
+    outln!(
         "length scales (rad): {}",
         h.length_scales
             .iter()
@@ -742,21 +746,22 @@ fn train_gp(args: TrainGpArgs) -> Result<(), Failure> {
             .collect::<Vec<_>>()
             .join(", ")
     );
-    println!(
+    outln!(
         "signal std sf: {:.4} m, noise std sn: {:.5} m",
-        h.signal_std, h.noise_std
+        h.signal_std,
+        h.noise_std
     );
-    println!(
+    outln!(
         "log marginal likelihood: {:.3}",
         fit.log_marginal_likelihood
     );
-    println!(
+    outln!(
         "held-out error on {} configurations in the training box: RMS {:.2} mm, max {:.2} mm",
         held.points,
         held.rms * 1e3,
         held.max * 1e3
     );
-    println!("wrote {}", args.out.display());
+    outln!("wrote {}", args.out.display());
     Ok(())
 }
 
@@ -774,16 +779,16 @@ fn bench(args: BenchArgs) -> Result<(), Failure> {
     let calibration = calibration_for(&setup, &[method], args.calib.as_ref())?;
     let figures = scenario::bench::bench(&setup, method, calibration.as_deref(), args.ticks)
         .map_err(bad_input)?;
-    println!("scenario: {}", setup.scenario().name);
-    println!("method: {method}");
-    println!("joints: {}", setup.model.joints.len());
-    println!("gp_points: {}", setup.gp.n_points());
+    outln!("scenario: {}", setup.scenario().name);
+    outln!("method: {method}");
+    outln!("joints: {}", setup.model.joints.len());
+    outln!("gp_points: {}", setup.gp.n_points());
     for f in figures {
         // Three decimals for timings; small figures (an MSE) in scientific notation.
         if f.value != 0.0 && f.value.abs() < 0.1 {
-            println!("{}: {:.4e}", f.name, f.value);
+            outln!("{}: {:.4e}", f.name, f.value);
         } else {
-            println!("{}: {:.3}", f.name, f.value);
+            outln!("{}: {:.3}", f.name, f.value);
         }
     }
     Ok(())
@@ -859,7 +864,7 @@ fn check_urdf(args: CheckUrdfArgs) -> Result<(), Failure> {
     }
     if args.json {
         let doc = arm::describe_arm(&model, &args.path, args.ee.as_deref());
-        println!("{doc}");
+        outln!("{doc}");
     }
     Ok(())
 }
@@ -922,7 +927,7 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
         .with_context(|| format!("writing {}", args.out.display()))
         .map_err(internal)?;
     staged.commit().map_err(file_failure)?;
-    println!(
+    outln!(
         "wrote {} rows ({} joints, {} s at dt {}) to {}",
         rows.len(),
         n,

@@ -3,8 +3,12 @@
 //! Exit codes: 0 success, 2 bad input (the message names the file and the field), 1 internal
 //! error (an output could not be written, a bug).
 
+#[macro_use]
+mod output;
 mod args;
 mod commands;
+#[cfg(test)]
+mod doc_commands;
 
 use std::process::ExitCode;
 
@@ -12,11 +16,19 @@ use clap::Parser;
 
 fn main() -> ExitCode {
     let cli = args::Cli::parse();
-    match commands::dispatch(cli) {
-        Ok(()) => ExitCode::SUCCESS,
+    let result = commands::dispatch(cli);
+    let stdout_failure = output::finish();
+    match result {
         Err(failure) => {
-            eprintln!("error: {:#}", failure.error);
+            errln!("error: {:#}", failure.error);
             ExitCode::from(failure.code)
         }
+        Ok(()) => match stdout_failure {
+            Some(e) => {
+                errln!("error: writing to stdout: {e}");
+                ExitCode::from(1)
+            }
+            None => ExitCode::SUCCESS,
+        },
     }
 }
