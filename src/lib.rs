@@ -36,6 +36,31 @@ mod settings;
 
 pub use settings::SettingError;
 
+/// Most worker threads aift's thread pool is given, whatever `RAYON_NUM_THREADS` asks for:
+/// four per core, and at least 64 (`RAYON_NUM_THREADS=100000` spent minutes creating threads).
+pub fn max_worker_threads() -> usize {
+    let cores = std::thread::available_parallelism().map_or(1, usize::from);
+    cores.saturating_mul(4).max(64)
+}
+
+/// Sets up the global thread pool with `RAYON_NUM_THREADS` bounded by [`max_worker_threads`];
+/// returns a warning when it was lowered. Call it before any parallel work (the CLI and the
+/// Python package do); a pool that already exists is left as it is.
+pub fn init_thread_pool() -> Option<String> {
+    let asked = std::env::var("RAYON_NUM_THREADS").ok()?;
+    let max = max_worker_threads();
+    let n: u128 = asked.trim().parse().ok()?;
+    if n <= max as u128 {
+        return None;
+    }
+    let built = rayon::ThreadPoolBuilder::new()
+        .num_threads(max)
+        .build_global();
+    built.ok().map(|()| {
+        format!("RAYON_NUM_THREADS={asked} is more than {max} (four per core, at least 64); using {max} threads")
+    })
+}
+
 /// An error and its sources joined by `: `, as the CLI prints them (anyhow's `{:#}`).
 pub fn error_chain(error: &dyn std::error::Error) -> String {
     let mut text = error.to_string();

@@ -601,3 +601,319 @@ fn a_closed_pipe_ends_the_output_and_a_full_one_is_an_error_never_a_panic() {
         assert!(d.join("r2/summary.json").is_file());
     }
 }
+
+/// Edits `DIR/records.json` of a copy of `shard` with `edit`; returns the copy's name.
+fn edited_shard(
+    d: &Path,
+    shard: &str,
+    name: &str,
+    edit: impl Fn(&mut serde_json::Value),
+) -> String {
+    let copy = d.join(name);
+    std::fs::create_dir_all(&copy).unwrap();
+    let text = std::fs::read_to_string(d.join(shard).join("records.json")).unwrap();
+    let mut v: serde_json::Value = serde_json::from_str(&text).unwrap();
+    edit(&mut v);
+    std::fs::write(copy.join("records.json"), v.to_string()).unwrap();
+    name.to_string()
+}
+
+#[test]
+fn merge_checks_every_record_against_its_config() {
+    // Issue 30, class 2: records.json was trusted (panics, an 8 TB allocation, silent extra seeds).
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let text = common::tiny_campaign(
+        "merge_checks",
+        "[reaching]\ntasks = 1\nduration = 1.0\ncalibration_runs = 2\n",
+    )
+    .replace("seeds = 1", "seeds = 2");
+    std::fs::write(d.join("c.toml"), text).unwrap();
+    for k in ["1", "2"] {
+        common::aift_ok(
+            &[
+                "campaign",
+                "c.toml",
+                "--shard",
+                &format!("{k}/2"),
+                "--out",
+                &format!("s{k}"),
+            ],
+            d,
+        );
+    }
+    common::aift_ok(&["merge", "s1", "s2", "--out", "whole"], d);
+    let first_run = |v: &serde_json::Value| v["runs"][0].clone();
+    type Edit = Box<dyn Fn(&mut serde_json::Value)>;
+    let cases: Vec<(&str, Edit, &str)> = vec![
+        (
+            "cell",
+            Box::new(|v| v["runs"][0]["cell"] = 999_999.into()),
+            "cell 999999",
+        ),
+        (
+            "arm",
+            Box::new(|v| v["reaching"][0]["arm"] = 77.into()),
+            "arm 77",
+        ),
+        (
+            "no-arms",
+            Box::new(|v| v["config"]["arms"] = serde_json::json!([])),
+            "arms",
+        ),
+        (
+            "shard0",
+            Box::new(|v| v["shard"]["count"] = 0.into()),
+            "shard",
+        ),
+        (
+            "jobs",
+            Box::new(|v| v["jobs"] = 1_000_000_000_000u64.into()),
+            "jobs",
+        ),
+        (
+            "twice",
+            Box::new(move |v| {
+                let r = first_run(v);
+                v["runs"].as_array_mut().unwrap().push(r);
+            }),
+            "twice",
+        ),
+        (
+            "method",
+            Box::new(|v| v["runs"][0]["method"] = "hybrid".into()),
+            "hybrid",
+        ),
+        (
+            "seed",
+            Box::new(|v| v["runs"][0]["seed"] = 7.into()),
+            "seed 7",
+        ),
+        (
+            "edited",
+            Box::new(|v| v["config"]["verdict"]["tolerance"] = 9.0.into()),
+            "edited",
+        ),
+        (
+            "format",
+            Box::new(|v| v["format_version"] = 99.into()),
+            "format_version 99",
+        ),
+    ];
+    for (name, edit, needle) in cases {
+        let bad = edited_shard(d, "s1", name, edit);
+        let o = aift(&["merge", &bad, "s2", "--out", "m"], d);
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{name}: {stderr}");
+        assert!(
+            stderr.contains(needle),
+            "{name}: lacks {needle:?}: {stderr}"
+        );
+        assert!(
+            stderr.contains(&bad),
+            "{name}: the shard is not named: {stderr}"
+        );
+        assert!(!d.join("m").exists(), "{name}");
+    }
+    let staging: Vec<_> = std::fs::read_dir(d)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.contains(".aift-"))
+        .collect();
+    assert!(staging.is_empty(), "{staging:?}");
+}
+
+#[test]
+fn campaign_grids_are_counted_named_and_deduplicated_before_any_run() {
+    // Issue 30, classes 3, 5, 6 and an empty grid (10): refused at once, exit 2, the key named.
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let base = common::tiny_campaign("grid_checks", "");
+    let check = |name: &str, text: String, needles: &[&str]| {
+        std::fs::write(d.join(format!("{name}.toml")), text).unwrap();
+        refused(
+            &["campaign", &format!("{name}.toml"), "--out", "o"],
+            needles,
+            d,
+            "o",
+        );
+    };
+    // 1e8 cells from a short file: 200 arms x 100 channels x 8 kinds x 3 onsets + ...
+    let mut huge = base.replace("channels = [\"enc*\"]", &{
+        let list: Vec<String> = (0..100).map(|i| format!("\"cam{i}\"")).collect();
+        format!("channels = [{}]", list.join(","))
+    });
+    huge = huge.replace(
+        "[[kinds]]\nkind = \"freeze\"\nonsets = [\"moving\"]",
+        "[[kinds]]\nkind = \"freeze\"\nonsets = [\"moving\", \"rest\", \"rest-then-motion\"]",
+    );
+    for i in 0..999 {
+        huge.push_str(&format!(
+            "\n[[arms]]\nname = \"a{i}\"\nscenario = \"x.toml\"\njoints = [{}]\n",
+            (1..=50)
+                .map(|j| j.to_string())
+                .collect::<Vec<_>>()
+                .join(",")
+        ));
+    }
+    huge = huge.replace("channels = [", "channels = [\"enc*\", ");
+    check("huge", huge, &["cells", "at most 100000"]);
+    check(
+        "slash",
+        base.replace("name = \"paper\"", "name = \"../up\""),
+        &["arms[0].name"],
+    );
+    check(
+        "empty_name",
+        base.replace("name = \"paper\"", "name = \"\""),
+        &["arms[0].name"],
+    );
+    let second_arm = format!(
+        "\n[[arms]]\nname = \"paper\"\nscenario = \"{}\"\n",
+        common::repo("assets/scenarios/paper_healthy.toml").display()
+    );
+    check(
+        "same_arm",
+        format!("{base}{second_arm}"),
+        &["arms[1].name", "earlier arm"],
+    );
+    check(
+        "channel_twice",
+        base.replace("channels = [\"enc*\"]", "channels = [\"enc*\", \"enc1\"]"),
+        &["channels[1]"],
+    );
+    check(
+        "kind_twice",
+        format!("{base}\n[[kinds]]\nkind = \"freeze\"\n"),
+        &["kinds[1]", "twice"],
+    );
+    check(
+        "onset_twice",
+        base.replace("onsets = [\"moving\"]", "onsets = [\"moving\", \"moving\"]"),
+        &["kinds[0].onsets[1]"],
+    );
+    check(
+        "empty",
+        base.replace("[[kinds]]\nkind = \"freeze\"\nonsets = [\"moving\"]", "")
+            .replace(
+                "name = \"grid_checks\"",
+                "name = \"grid_checks\"\nhealthy = false",
+            ),
+        &["empty"],
+    );
+}
+
+/// A small URDF: base, three revolute joints in a chain (l1, l2, ee), and `extra` joints and
+/// links; `j2` as given.
+fn small_urdf(j2: &str, extra: &str) -> String {
+    let link = |name: &str| {
+        format!(
+            r#"<link name="{name}"><inertial><mass value="1.0"/><origin xyz="0 0 0.15"/>
+<inertia ixx="0.01" iyy="0.01" izz="0.002" ixy="0" ixz="0" iyz="0"/></inertial>
+<collision><origin xyz="0 0 0.15"/><geometry><box size="0.05 0.05 0.3"/></geometry></collision></link>"#
+        )
+    };
+    format!(
+        r#"<robot name="small">
+<link name="base"/>
+{l1}{l2}{ee}
+<joint name="j1" type="revolute"><parent link="base"/><child link="l1"/><origin xyz="0 0 0.1"/>
+<axis xyz="0 0 1"/><limit lower="-2" upper="2" effort="100" velocity="2"/><dynamics damping="1"/></joint>
+{j2}
+<joint name="j3" type="revolute"><parent link="l2"/><child link="ee"/><origin xyz="0 0 0.3"/>
+<axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="100" velocity="2"/><dynamics damping="1"/></joint>
+{extra}
+</robot>"#,
+        l1 = link("l1"),
+        l2 = link("l2"),
+        ee = link("ee"),
+    )
+}
+
+const J2: &str = r#"<joint name="j2" type="revolute"><parent link="l1"/><child link="l2"/><origin xyz="0 0 0.3"/>
+<axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="100" velocity="2"/><dynamics damping="1"/></joint>"#;
+
+#[test]
+fn init_refuses_what_cannot_work_and_passes_warnings_on() {
+    // Issue 30, class 8.
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let write = |name: &str, text: String| std::fs::write(d.join(name), text).unwrap();
+    // The plain chain is accepted (the cases below differ from it in one thing each).
+    write("chain.urdf", small_urdf(J2, ""));
+    common::aift_ok(&["init", "--urdf", "chain.urdf", "--out", "chain.toml"], d);
+    // A second branch (a finger on l1): its joint does not move the end effector.
+    let finger = r#"<link name="finger"><inertial><mass value="0.1"/>
+<inertia ixx="1e-4" iyy="1e-4" izz="1e-4" ixy="0" ixz="0" iyz="0"/></inertial></link>
+<joint name="finger_joint" type="revolute"><parent link="l1"/><child link="finger"/><origin xyz="0.05 0 0.2"/>
+<axis xyz="0 1 0"/><limit lower="-1" upper="1" effort="10" velocity="2"/></joint>"#;
+    write("tree.urdf", small_urdf(J2, finger));
+    refused(
+        &["init", "--urdf", "tree.urdf", "--out", "t.toml"],
+        &[
+            "tree.urdf",
+            "finger_joint",
+            "serial",
+            "branches at link 'l1'",
+        ],
+        d,
+        "t.toml",
+    );
+    refused(
+        &[
+            "init",
+            "--urdf",
+            "tree.urdf",
+            "--ee",
+            "finger",
+            "--out",
+            "t.toml",
+        ],
+        &["--ee", "'j2'"],
+        d,
+        "t.toml",
+    );
+    // The end effector on the root.
+    refused(
+        &[
+            "init",
+            "--urdf",
+            "chain.urdf",
+            "--ee",
+            "base",
+            "--out",
+            "t.toml",
+        ],
+        &["--ee", "fixed to the world"],
+        d,
+        "t.toml",
+    );
+    // A range of 1e-7 rad: targets would equal the start.
+    write(
+        "narrow.urdf",
+        small_urdf(
+            &J2.replace(r#"lower="-2" upper="2""#, r#"lower="0" upper="1e-7""#),
+            "",
+        ),
+    );
+    refused(
+        &["init", "--urdf", "narrow.urdf", "--out", "t.toml"],
+        &["joint 'j2' <limit>", "narrower"],
+        d,
+        "t.toml",
+    );
+    // Loader warnings reach the user as they do in check-urdf and run.
+    write(
+        "mimic.urdf",
+        small_urdf(
+            &J2.replace("</joint>", r#"<mimic joint="j1"/></joint>"#),
+            "",
+        ),
+    );
+    let o = common::aift_ok(&["init", "--urdf", "mimic.urdf", "--out", "m.toml"], d);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        stderr.contains("warning") && stderr.contains("<mimic> ignored"),
+        "{stderr}"
+    );
+}

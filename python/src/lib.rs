@@ -895,6 +895,10 @@ fn schema() -> String {
 
 #[pymodule]
 fn _aift(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    if let Some(warning) = aift::init_thread_pool() {
+        let warnings = m.py().import("warnings")?;
+        warnings.call_method1("warn", (warning,))?;
+    }
     m.add("AiftError", m.py().get_type::<AiftError>())?;
     m.add("BadInput", m.py().get_type::<BadInput>())?;
     m.add("InternalError", m.py().get_type::<InternalError>())?;

@@ -75,12 +75,16 @@ pub fn write_shard(dir: &Path, records: &CampaignRecords) -> Result<(), ReportEr
 pub fn read_records(dir: &Path) -> Result<CampaignRecords, ReportError> {
     let path = dir.join(RECORDS);
     let text = crate::fsio::read_text(&path, crate::fsio::MAX_CALIBRATION_BYTES)?;
-    serde_json::from_str(&text).map_err(|e| {
+    let bad = |message: String| {
         ReportError::File(crate::fsio::FsError::BadOutput {
-            path,
-            message: format!("not a campaign shard: {e}"),
+            path: path.clone(),
+            message,
         })
-    })
+    };
+    let records: CampaignRecords =
+        serde_json::from_str(&text).map_err(|e| bad(format!("not a campaign shard: {e}")))?;
+    crate::scenario::campaign::check_records(&records).map_err(bad)?;
+    Ok(records)
 }
 
 /// Merges shards (their folders) into the files of the whole campaign, written into `dir`

@@ -167,9 +167,26 @@ pub fn init_scenario(urdf: &Path, options: &InitOptions) -> Result<String, Scena
         .clone()
         .unwrap_or_else(|| default_ee(&model));
     let end_effector = EndEffector::new(&model, &ee, [0.0; 3])?;
+    check_serial(&model, &end_effector, &ee, options.ee_link.is_some(), urdf)?;
     let model = Arc::new(model);
     let n = model.joints.len();
     let poses = start_and_targets(&model);
+    // A joint that cannot move far enough for a target the sensors can tell from the start.
+    for j in &model.joints {
+        if let (JointKind::Revolute | JointKind::Prismatic, Some((lo, hi))) = (j.kind, j.limits)
+            && hi - lo < MIN_RANGE
+        {
+            return Err(ScenarioError::Invalid {
+                path: urdf.to_path_buf(),
+                field: format!("joint '{}' <limit>", j.name),
+                message: format!(
+                    "its range [{lo}, {hi}] is narrower than {MIN_RANGE}: no target init could \
+                     set would stand out from the encoders' noise (make the joint fixed, or \
+                     give its real limits)"
+                ),
+            });
+        }
+    }
     let gains = gains_from_dynamics(&model, &poses);
     // What no gain can fix: a motor weaker than the gravity torque it must hold.
     for (j, g) in model.joints.iter().zip(&gains.g_max) {
@@ -205,6 +222,61 @@ pub fn init_scenario(urdf: &Path, options: &InitOptions) -> Result<String, Scena
         g_max: &gains.g_max,
     };
     Ok(render(&scenario, &notes))
+}
+
+/// Narrowest joint range (rad or m) init writes targets for: 20 standard deviations of the
+/// default encoder noise.
+const MIN_RANGE: f64 = 0.02;
+
+/// aift controls serial arms: every joint must move the end effector (the camera sees nothing
+/// else, and the u-AIC's camera model is a function of every joint). Refuses an end effector on
+/// the root (no joint moves it) and joints on another branch of a tree.
+fn check_serial(
+    model: &ArmModel,
+    ee: &EndEffector,
+    ee_name: &str,
+    given: bool,
+    urdf: &Path,
+) -> Result<(), ScenarioError> {
+    let field = if given {
+        "--ee".to_string()
+    } else {
+        format!("the end effector '{ee_name}' (chosen by init; --ee picks another)")
+    };
+    let mut moves = vec![false; model.joints.len()];
+    let mut body = ee.body;
+    while body != 0 {
+        let Some(j) = model.joints.iter().position(|j| j.child_body == body) else {
+            break;
+        };
+        moves[j] = true;
+        body = model.joints[j].parent_body;
+    }
+    if ee.body == 0 {
+        return Err(ScenarioError::Invalid {
+            path: urdf.to_path_buf(),
+            field,
+            message: format!(
+                "link '{ee_name}' is fixed to the world: no joint moves it (choose a link at the \
+                 end of the chain)"
+            ),
+        });
+    }
+    if let Some(j) = moves.iter().position(|m| !m) {
+        let joint = &model.joints[j];
+        let at = &model.bodies[joint.parent_body].link;
+        return Err(ScenarioError::Invalid {
+            path: urdf.to_path_buf(),
+            field,
+            message: format!(
+                "joint '{}' does not move link '{ee_name}': the arm branches at link '{at}' \
+                 and aift controls serial arms (make the other branch's joints fixed, e.g. a \
+                 gripper's fingers, or choose an end effector that every joint moves)",
+                joint.name
+            ),
+        });
+    }
+    Ok(())
 }
 
 /// The start and the two targets, and which joints start mid-range.

@@ -364,6 +364,18 @@ fn init(args: InitArgs) -> Result<(), Failure> {
             }
         })
         .collect();
+    // The loader's warnings (mimic joints ignored, limits missing, ...), as check-urdf and run
+    // print them; a URDF that does not load is reported by init itself.
+    if let Ok(model) = arm::load_urdf_with(
+        &args.urdf,
+        &arm::UrdfOptions {
+            balance_inertia: args.balance_inertia,
+        },
+    ) {
+        for w in &model.warnings {
+            errln!("warning: {}: {w}", args.urdf.display());
+        }
+    }
     let text = scenario::init::init_scenario(
         &args.urdf,
         &scenario::init::InitOptions {

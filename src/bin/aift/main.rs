@@ -16,6 +16,9 @@ use clap::Parser;
 
 fn main() -> ExitCode {
     let cli = args::Cli::parse();
+    if let Some(warning) = aift::init_thread_pool() {
+        errln!("warning: {warning}");
+    }
     let result = commands::dispatch(cli);
     let stdout_failure = output::finish();
     match result {

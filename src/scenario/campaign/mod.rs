@@ -32,7 +32,7 @@ pub use config::{
     ReachingConfig, VerdictConfig,
 };
 pub use grid::{Cell, expand};
-pub use merge::merge;
+pub use merge::{check_records, merge};
 pub use reaching::{ReachingRun, ReachingTask};
 pub use run::{CampaignRecords, CampaignRun, Shard, Verdict, run_campaign};
 pub use summary::{CellSummary, MethodSummary, summarise, worse_than_no_ft};
@@ -198,6 +198,7 @@ fn validate(config: &CampaignConfig, path: &Path) -> Result<Vec<Method>, Scenari
         }
         None => Method::ALL.to_vec(),
     };
+    check_grid(config, path, methods.len())?;
     if let Some(r) = &config.reaching
         && (r.tasks == 0
             || r.tasks > 100_000
@@ -211,6 +212,167 @@ fn validate(config: &CampaignConfig, path: &Path) -> Result<Vec<Method>, Scenari
         ));
     }
     Ok(methods)
+}
+
+/// Checks the grid before it is expanded: names (arms name files, so each is unique and safe in
+/// a file name), entries listed twice (they would run and count a cell twice, or give two cells
+/// one label), and the number of cells and runs, counted from the file's lists (a small file can
+/// describe 1e8 cells).
+fn check_grid(config: &CampaignConfig, path: &Path, methods: usize) -> Result<(), ScenarioError> {
+    let bad = |field: &str, message: String| invalid(path, field, message);
+    let safe = |name: &str| {
+        !name.is_empty()
+            && name.len() <= 100
+            && !name.starts_with('.')
+            && name
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || "_-.".contains(c))
+    };
+    let mut names = std::collections::BTreeSet::new();
+    for (i, arm) in config.arms.iter().enumerate() {
+        if !safe(&arm.name) {
+            return Err(bad(
+                &format!("arms[{i}].name"),
+                format!(
+                    "{:?} must be 1 to 100 letters, digits, '_', '-' or '.', not starting with \
+                     '.' (it names the arm's files)",
+                    arm.name
+                ),
+            ));
+        }
+        if !names.insert(arm.name.as_str()) {
+            return Err(bad(
+                &format!("arms[{i}].name"),
+                format!("{:?} is the name of an earlier arm", arm.name),
+            ));
+        }
+        if let Some((k, j)) = arm
+            .joints
+            .iter()
+            .enumerate()
+            .find(|(k, j)| arm.joints[..*k].contains(j))
+        {
+            return Err(bad(
+                &format!("arms[{i}].joints[{k}]"),
+                format!("joint {j} is listed twice"),
+            ));
+        }
+    }
+    for (i, c) in config.channels.iter().enumerate() {
+        if config.channels[..i].contains(c) {
+            return Err(bad(
+                &format!("channels[{i}]"),
+                format!("{c:?} is listed twice"),
+            ));
+        }
+        let group = if c.starts_with("enc") {
+            "enc*"
+        } else if c.starts_with("tach") {
+            "tach*"
+        } else {
+            ""
+        };
+        if !group.is_empty() && c != group && config.channels.iter().any(|o| o == group) {
+            return Err(bad(
+                &format!("channels[{i}]"),
+                format!("{c:?} is already one of {group:?}"),
+            ));
+        }
+    }
+    for (i, k) in config.kinds.iter().enumerate() {
+        let name = k.fault_kind("enc1").name();
+        if config.kinds[..i]
+            .iter()
+            .any(|o| o.fault_kind("enc1").name() == name)
+        {
+            return Err(bad(
+                &format!("kinds[{i}]"),
+                format!(
+                    "kind {name:?} is listed twice (a cell is named by its channel, kind and \
+                     onset; put its onsets in one entry)"
+                ),
+            ));
+        }
+        let onsets = k.onsets();
+        if onsets.is_empty() {
+            return Err(bad(&format!("kinds[{i}].onsets"), "lists no onset".into()));
+        }
+        if let Some((j, o)) = onsets
+            .iter()
+            .enumerate()
+            .find(|(j, o)| onsets[..*j].contains(o))
+        {
+            return Err(bad(
+                &format!("kinds[{i}].onsets[{j}]"),
+                format!("{:?} is listed twice", o.name()),
+            ));
+        }
+    }
+    for (i, p) in config.pairs.iter().enumerate() {
+        if config.pairs[..i].iter().any(|o| o.label == p.label) {
+            return Err(bad(
+                &format!("pairs[{i}].label"),
+                format!("{:?} is the label of an earlier pair", p.label),
+            ));
+        }
+    }
+    // Cells per arm: healthy + channels x (kinds x onsets) + pairs, counted without expanding.
+    let onsets: usize = config
+        .kinds
+        .iter()
+        .fold(0usize, |n, k| n.saturating_add(k.onsets().len()));
+    let mut cells = 0usize;
+    for arm in &config.arms {
+        let channels = config.channels.iter().fold(0usize, |n, c| {
+            n.saturating_add(if c == "enc*" || c == "tach*" {
+                arm.joints.len()
+            } else {
+                1
+            })
+        });
+        cells = cells
+            .saturating_add(usize::from(config.healthy))
+            .saturating_add(channels.saturating_mul(onsets))
+            .saturating_add(config.pairs.len());
+    }
+    if cells > MAX_CELLS {
+        return Err(bad(
+            "kinds",
+            format!(
+                "the grid has {cells} cells (per arm: healthy, channels x kinds x onsets, \
+                 pairs); at most {MAX_CELLS}"
+            ),
+        ));
+    }
+    let reaching = config.reaching.as_ref().map_or(0, |r| {
+        config
+            .arms
+            .len()
+            .saturating_mul(r.tasks)
+            .saturating_mul(methods)
+    });
+    let jobs = cells
+        .saturating_mul(methods)
+        .saturating_mul(config.seeds)
+        .saturating_add(reaching);
+    if jobs > MAX_JOBS {
+        return Err(bad(
+            "seeds",
+            format!(
+                "{jobs} runs (cells x methods x seeds, and reaching tasks x methods); at most \
+                 {MAX_JOBS}"
+            ),
+        ));
+    }
+    if cells == 0 && config.reaching.is_none() {
+        return Err(bad(
+            "kinds",
+            "the grid is empty: no healthy cell, no fault kind with a channel, no pair and no \
+             reaching benchmark"
+                .into(),
+        ));
+    }
+    Ok(())
 }
 
 /// Loads each arm's template (laid over by the campaign's `[defaults]`, the arm's `overrides`,
@@ -327,6 +489,19 @@ fn check_cells(
         }
     }
     Ok(())
+}
+
+/// A label of a campaign's configuration as written (FNV-1a 64; a label, not a security hash).
+pub fn config_digest(config: &CampaignConfig) -> String {
+    let mut hash: u64 = 0xcbf29ce484222325;
+    for b in toml::to_string(config)
+        .expect("a campaign always serialises")
+        .bytes()
+    {
+        hash ^= u64::from(b);
+        hash = hash.wrapping_mul(0x100000001b3);
+    }
+    format!("{hash:016x}")
 }
 
 /// A label of everything the campaign's results depend on: the campaign file, each arm's

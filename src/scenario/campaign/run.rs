@@ -253,6 +253,10 @@ pub struct CampaignRecords {
     pub config: CampaignConfig,
     pub campaign: String,
     pub fingerprint: String,
+    /// A label of `config` as written (FNV-1a 64), so that `aift merge` notices a config edited
+    /// after the run; absent in records of earlier versions.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub config_digest: Option<String>,
     pub shard: Shard,
     pub jobs: usize,
     /// Each arm's plant and model error, in the order of the arms.
@@ -345,6 +349,7 @@ pub fn run_campaign(
         config: campaign.config.clone(),
         campaign: campaign.config.name.clone(),
         fingerprint: campaign.fingerprint.clone(),
+        config_digest: Some(super::config_digest(&campaign.config)),
         shard,
         jobs: all.len() + reaching.len(),
         conditions: campaign.arms.iter().map(RunSetup::conditions).collect(),
