@@ -917,3 +917,129 @@ fn init_refuses_what_cannot_work_and_passes_warnings_on() {
         "{stderr}"
     );
 }
+
+#[test]
+fn report_refuses_damaged_files_naming_the_row_and_the_column() {
+    // Issue 30, class 9: only the rows a page kept were parsed, and JSON of the wrong shape gave
+    // an empty page.
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let healthy = scenario("paper_healthy.toml");
+    common::aift_ok(
+        &["run", &healthy, "--set", "duration=1.0", "--out", "run"],
+        d,
+    );
+    common::aift_ok(
+        &[
+            "table",
+            &healthy,
+            "--set",
+            "duration=1.0",
+            "--seeds",
+            "1",
+            "--methods",
+            "no-ft",
+            "--out",
+            "table",
+        ],
+        d,
+    );
+    std::fs::write(d.join("c.toml"), common::tiny_campaign("report_shapes", "")).unwrap();
+    common::aift_ok(&["campaign", "c.toml", "--out", "campaign"], d);
+    let copy = |from: &str, to: &str| {
+        let dst = d.join(to);
+        std::fs::create_dir_all(&dst).unwrap();
+        for e in std::fs::read_dir(d.join(from)).unwrap() {
+            let e = e.unwrap();
+            std::fs::copy(e.path(), dst.join(e.file_name())).unwrap();
+        }
+        dst
+    };
+    let trajectory = std::fs::read_to_string(d.join("run/trajectory.csv")).unwrap();
+    let lines: Vec<&str> = trajectory.lines().collect();
+    let header = lines[0];
+    let last_line = format!("line {}", lines.len());
+    let damaged: Vec<(&str, String, Vec<&str>)> = vec![
+        (
+            "late_text",
+            {
+                let mut l: Vec<String> = lines.iter().map(|x| x.to_string()).collect();
+                let last = l.len() - 1;
+                let mut values: Vec<&str> = l[last].split(',').collect();
+                values[1] = "abc";
+                l[last] = values.join(",");
+                l.join("\n")
+            },
+            vec![&last_line, "column `q1`", "is not a number"],
+        ),
+        (
+            "no_t",
+            trajectory.replacen("t,", "time,", 1),
+            vec!["no column `t`"],
+        ),
+        (
+            "no_mu1",
+            trajectory.replacen(",mu1,", ",muX,", 1),
+            vec!["no column `mu1`"],
+        ),
+        ("header_only", format!("{header}\n"), vec!["no rows"]),
+        (
+            "cut_header",
+            trajectory.replacen(header, &header[..header.len() / 2], 1),
+            vec!["line 2", "the header has"],
+        ),
+    ];
+    for (name, text, needles) in damaged {
+        let dir = copy("run", name);
+        std::fs::write(dir.join("trajectory.csv"), text).unwrap();
+        let mut n = needles.clone();
+        n.push("trajectory.csv");
+        refused(
+            &["report", name],
+            &n,
+            d,
+            &format!("{name}/report.html.none"),
+        );
+    }
+    let edit_json = |from: &str, to: &str, file: &str, edit: &dyn Fn(&mut serde_json::Value)| {
+        let dir = copy(from, to);
+        let path = dir.join(file);
+        let mut v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        edit(&mut v);
+        std::fs::write(&path, v.to_string()).unwrap();
+    };
+    edit_json("table", "t1", "table.json", &|v| {
+        v["rows"][0]["mse_healthy_mean"] = "x".into()
+    });
+    refused(
+        &["report", "t1"],
+        &["table.json", "`rows[0]`.mse_healthy_mean"],
+        d,
+        "none",
+    );
+    edit_json("table", "t2", "table.json", &|v| {
+        v["rows"] = serde_json::json!([])
+    });
+    refused(
+        &["report", "t2"],
+        &["table.json", "`rows`: empty"],
+        d,
+        "none",
+    );
+    edit_json("campaign", "c1", "campaign.json", &|v| {
+        v["cells"][0]["results"][0]["verdict"] = 3.into()
+    });
+    refused(
+        &["report", "c1"],
+        &["campaign.json", "`cells[0]`.results[0].verdict"],
+        d,
+        "none",
+    );
+    edit_json("campaign", "c2", "campaign.json", &|v| {
+        v["cells"] = "none".into()
+    });
+    refused(&["report", "c2"], &["campaign.json", "`cells`"], d, "none");
+    edit_json("run", "r1", "summary.json", &|v| v["seed"] = "one".into());
+    refused(&["report", "r1"], &["summary.json", "`seed`"], d, "none");
+}

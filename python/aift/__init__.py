@@ -162,11 +162,21 @@ def run(scenario=None, method: Optional[str] = None, seed: Optional[int] = None,
     return RunResult(json.loads(summary), Trajectory(names, data) if trajectory else None, _path(out))
 
 
+def _methods(methods):
+    """A list of method names: a sequence, or one string of comma-separated names (as the
+    CLI's ``--methods``; a bare string was read letter by letter)."""
+    if methods is None:
+        return None
+    if isinstance(methods, str):
+        return [m.strip() for m in methods.split(",")]
+    return list(methods)
+
+
 def table(scenario=None, methods: Optional[Sequence[str]] = None, seeds: int = 20, *,
           out=None, force: bool = False, calib=None) -> Rows:
     """Every method (or ``methods``) over ``seeds`` seeds from the scenario's: table.json's
     document and its rows (one per method)."""
-    doc = _aift.run_table(_scenario(scenario), None if methods is None else list(methods), seeds,
+    doc = _aift.run_table(_scenario(scenario), _methods(methods), seeds,
                           _path(out), force, _path(calib))
     return Rows(json.loads(doc), "rows")
 
@@ -175,7 +185,7 @@ def campaign(path=None, *, seeds: Optional[int] = None, methods: Optional[Sequen
              set: Iterable[str] = (), shard: Optional[str] = None, out=None, force: bool = False) -> Rows:
     """Runs a campaign file (default: the bundled one): campaign.json's document, with its
     per-cell rows (``doc["cells"]``) as rows."""
-    doc = json.loads(_aift.run_campaign(_path(path), seeds, None if methods is None else list(methods),
+    doc = json.loads(_aift.run_campaign(_path(path), seeds, _methods(methods),
                                         list(set), shard, _path(out), force))
     return Rows(doc, "cells")
 

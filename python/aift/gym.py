@@ -33,6 +33,7 @@ class AiftEnv(gym.Env):
         n_obs = len(self.sim.channels) + self.sim.n_joints
         self.observation_space = spaces.Box(-np.inf, np.inf, shape=(n_obs,), dtype=np.float64)
         self._obs = None
+        self._done = False
 
     def _observation(self, obs) -> np.ndarray:
         y = np.nan_to_num(obs["y"], nan=0.0, posinf=0.0, neginf=0.0)
@@ -40,12 +41,19 @@ class AiftEnv(gym.Env):
 
     def reset(self, *, seed: Optional[int] = None, options=None):
         super().reset(seed=seed)
-        aift_seed = self._scenario.seed if seed is None else int(seed)
+        # gymnasium takes any non-negative integer seed; aift's are 64-bit: larger ones are
+        # reduced modulo 2**64.
+        aift_seed = self._scenario.seed if seed is None else int(seed) % (1 << 64)
         obs, info = self.sim.reset(aift_seed)
         self._obs = obs
+        self._done = False
         return self._observation(obs), dict(info)
 
     def step(self, action):
+        if self._obs is None:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        if self._done:
+            raise gym.error.ResetNeeded("the episode has ended (terminated or truncated); call reset()")
         a = np.clip(np.asarray(action, dtype=np.float64), self.action_space.low, self.action_space.high)
         torques = a if self.action_mode == "torque" else self._obs["u"] + a
         obs, info = self.sim.step(torques=torques)
@@ -53,4 +61,5 @@ class AiftEnv(gym.Env):
         reward = -float(np.sum((obs["target"] - obs["q"]) ** 2))
         terminated = info["diverged"] is not None
         truncated = bool(info["done"]) and not terminated
+        self._done = terminated or truncated
         return self._observation(obs), reward, terminated, truncated, dict(info)

@@ -305,10 +305,38 @@ fn calibration(
     calib: Option<&Path>,
 ) -> PyResult<Option<Calibration>> {
     let cache = calibrate::default_cache_dir();
-    let found = py
-        .detach(|| calibrate::calibration_for(setup, methods, calib, cache.as_deref()))
-        .map_err(|e| bad(aift::error_chain(&e)))?;
+    let found = interruptible(py, || {
+        calibrate::calibration_for(setup, methods, calib, cache.as_deref())
+    })?
+    .map_err(|e| bad(aift::error_chain(&e)))?;
     Ok(found.map(|(cal, _)| cal))
+}
+
+/// Runs `work` on a helper thread with the GIL released while this (the calling) thread checks
+/// for Python signals every 50 ms; on Ctrl-C every run of the process is asked to stop
+/// (`runner::stop_all_runs`), the work finishes within milliseconds, its result is dropped and
+/// KeyboardInterrupt is raised. A table, campaign or calibration stops within about 0.1 s.
+fn interruptible<T: Send>(py: Python<'_>, work: impl FnOnce() -> T + Send) -> PyResult<T> {
+    std::thread::scope(|scope| {
+        let handle = scope.spawn(work);
+        let mut signal = None;
+        while !handle.is_finished() {
+            if signal.is_none()
+                && let Err(e) = py.check_signals()
+            {
+                aift::scenario::runner::stop_all_runs(true);
+                signal = Some(e);
+            }
+            py.detach(|| std::thread::sleep(std::time::Duration::from_millis(50)));
+        }
+        let result = handle.join();
+        aift::scenario::runner::stop_all_runs(false);
+        match (signal, result) {
+            (Some(e), _) => Err(e),
+            (None, Ok(value)) => Ok(value),
+            (None, Err(panic)) => std::panic::resume_unwind(panic),
+        }
+    })
 }
 
 /// Ticks between checks for a pending Python signal.
@@ -459,9 +487,10 @@ fn run_table(
         None => None,
     };
     let cal = calibration(py, &setup, &methods, calib.as_deref())?;
-    let result = py
-        .detach(|| table::run_table(&setup, &methods, &seed_list, cal.as_ref(), &|| {}))
-        .map_err(|e| scenario_err(e, &[]))?;
+    let result = interruptible(py, || {
+        table::run_table(&setup, &methods, &seed_list, cal.as_ref(), &|| {})
+    })?
+    .map_err(|e| scenario_err(e, &[]))?;
     if let Some(staged) = staged {
         table_files::write_table(staged.path(), &setup, &result).map_err(report_err)?;
         staged.commit().map_err(file_err)?;
@@ -536,13 +565,12 @@ fn run_campaign(
         None => None,
     };
     let cache = calibrate::default_cache_dir();
-    let (campaign, records) = py
-        .detach(|| {
-            let campaign = Campaign::from_config(config, &path, &set)?;
-            let records = campaign::run_campaign(&campaign, shard, cache.as_deref(), &|_, _| {})?;
-            Ok::<_, ScenarioError>((campaign, records))
-        })
-        .map_err(|e| scenario_err(e, &[]))?;
+    let (campaign, records) = interruptible(py, || {
+        let campaign = Campaign::from_config(config, &path, &set)?;
+        let records = campaign::run_campaign(&campaign, shard, cache.as_deref(), &|_, _| {})?;
+        Ok::<_, ScenarioError>((campaign, records))
+    })?
+    .map_err(|e| scenario_err(e, &[]))?;
     if let Some(staged) = staged {
         if shard == Shard::WHOLE {
             campaign_files::write_campaign(staged.path(), &campaign, &records)
@@ -560,12 +588,15 @@ fn run_campaign(
 /// each `step()` applies the torques (the controller's, or the caller's), steps the plant one
 /// tick and does the next tick's sensing, estimation and control. With nothing supplied, the
 /// ticks are those of `run`, bit for bit.
-#[pyclass(module = "aift._aift", name = "Sim", unsendable)]
+#[pyclass(module = "aift._aift", name = "Sim")]
 struct PySim {
     setup: RunSetup,
     method: Method,
     calibration: Option<Calibration>,
-    sim: Option<Simulation>,
+    /// In a mutex only to make a `Sim` shareable between Python threads (a pyclass must be
+    /// `Sync`); every access is through `&mut self`, which PyO3 guards (a second thread using
+    /// the same `Sim` at once gets a RuntimeError), so the lock is never contended.
+    sim: std::sync::Mutex<Option<Simulation>>,
     diverged: Option<(u64, String)>,
 }
 
@@ -594,7 +625,12 @@ impl PySim {
         &mut self,
         py: Python<'py>,
     ) -> PyResult<(Bound<'py, PyDict>, Bound<'py, PyDict>)> {
-        let sim = self.sim.as_ref().expect("reset before observe");
+        let sim = self
+            .sim
+            .get_mut()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .as_ref()
+            .expect("reset before observe");
         let r = sim.record();
         if self.diverged.is_none()
             && let Some(reason) = DivergenceGuard::check(&r)
@@ -663,7 +699,7 @@ impl PySim {
             setup,
             method,
             calibration,
-            sim: None,
+            sim: std::sync::Mutex::new(None),
             diverged: None,
         })
     }
@@ -685,7 +721,10 @@ impl PySim {
             .simulation()
             .map_err(|e| scenario_err(e, &[]))?;
         sim.decide(readings.as_ref());
-        self.sim = Some(sim);
+        *self
+            .sim
+            .get_mut()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(sim);
         self.diverged = None;
         self.observe(py)
     }
@@ -719,8 +758,17 @@ impl PySim {
         }
         let sim = self
             .sim
+            .get_mut()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
             .as_mut()
             .ok_or_else(|| AiftError::new_err("reset() before step()"))?;
+        if sim.tick() + 1 >= sim.ticks() {
+            return Err(AiftError::new_err(format!(
+                "the run has ended: tick {} was its last (info[\"done\"] was true); reset() to \
+                 start over",
+                sim.tick()
+            )));
+        }
         sim.actuate(torques.as_deref());
         sim.decide(readings.as_ref());
         self.observe(py)
@@ -833,8 +881,7 @@ fn calibrate_to(
     let runs = runs.unwrap_or(setup.scenario().detector.calibration_runs);
     calibrate::check_size(&setup, runs).map_err(|e| scenario_err(e, &[]))?;
     let staged = Staged::begin(&out, OutputKind::File, true).map_err(file_err)?;
-    let cal = py
-        .detach(|| calibrate::calibrate(&setup, runs))
+    let cal = interruptible(py, || calibrate::calibrate(&setup, runs))?
         .map_err(|e| scenario_err(e, &[]))?;
     staged
         .commit_bytes(cal.to_json().as_bytes())

@@ -86,7 +86,9 @@ pub fn write_report(dir: &Path) -> Result<(FolderKind, PathBuf), ReportError> {
     let kind = FolderKind::detect(dir)?;
     let page = match kind {
         FolderKind::Run => {
-            let summary = read_json(&dir.join("summary.json"))?;
+            let path = dir.join("summary.json");
+            let summary = read_json(&path)?;
+            super::shape::check_summary(&summary).map_err(|e| bad(&path, e))?;
             let resolved = read_optional(&dir.join(super::run_files::RESOLVED))?;
             let (rows, total) =
                 TrajectoryRecorder::read_csv_decimated(&dir.join("trajectory.csv"), REPORT_ROWS)?;
@@ -506,7 +508,9 @@ fn parse_csv(text: &str) -> (Vec<String>, Vec<Vec<String>>) {
 
 /// The page of a table folder: the table and the per-method spreads over seeds.
 fn table_page(dir: &Path) -> Result<String, ReportError> {
-    let doc = read_json(&dir.join(super::table_files::TABLE_JSON))?;
+    let path = dir.join(super::table_files::TABLE_JSON);
+    let doc = read_json(&path)?;
+    super::shape::check_table(&doc).map_err(|e| bad(&path, e))?;
     let rows = doc["rows"].as_array().cloned().unwrap_or_default();
     let mut body = String::from(
         "<h2>Table</h2>\n<table><tr><th>method</th><th>seeds</th><th>MSE faulty joint</th><th>MSE healthy joint</th><th>max final error (rad)</th><th>ratio to oracle</th><th>post-fault MSE</th><th>detection delay (s)</th><th>isolation correct</th><th>false alarms</th><th>diverged</th><th>paper (faulty / healthy)</th></tr>",
@@ -617,7 +621,9 @@ fn verdict_class(v: &str) -> &'static str {
 /// The page of a campaign folder: per-method summary, the heatmaps and the matrix per arm with
 /// links down to each cell, each cell's numbers, the reaching benchmark.
 fn campaign_page(dir: &Path) -> Result<String, ReportError> {
-    let doc = read_json(&dir.join(super::campaign_files::CAMPAIGN_JSON))?;
+    let path = dir.join(super::campaign_files::CAMPAIGN_JSON);
+    let doc = read_json(&path)?;
+    super::shape::check_campaign(&doc).map_err(|e| bad(&path, e))?;
     let methods: Vec<String> = doc["methods"]
         .as_array()
         .map(|a| {

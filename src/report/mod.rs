@@ -8,6 +8,7 @@ pub mod campaign_files;
 pub mod html;
 pub mod plots;
 pub mod run_files;
+pub mod shape;
 pub mod table_files;
 
 use std::path::{Path, PathBuf};

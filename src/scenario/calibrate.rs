@@ -226,15 +226,53 @@ pub fn calibration_for(
 }
 
 /// Where on-the-fly calibrations are cached: `$AIFT_CACHE_DIR` (`off` disables the cache),
-/// else `$XDG_CACHE_HOME/aift`, else `$HOME/.cache/aift`.
+/// else `$XDG_CACHE_HOME/aift`, else `$HOME/.cache/aift`. Only absolute paths count (the XDG
+/// rule): an empty or relative value is skipped, so that no cache lands in the working folder;
+/// with none left there is no cache.
 pub fn default_cache_dir() -> Option<std::path::PathBuf> {
+    cache_dir_from(|k| std::env::var_os(k))
+}
+
+fn cache_dir_from(var: impl Fn(&str) -> Option<std::ffi::OsString>) -> Option<std::path::PathBuf> {
     use std::path::PathBuf;
-    match std::env::var_os("AIFT_CACHE_DIR") {
-        Some(v) if v == "off" => None,
-        Some(v) => Some(PathBuf::from(v)),
-        None => std::env::var_os("XDG_CACHE_HOME")
-            .map(PathBuf::from)
-            .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".cache")))
-            .map(|d| d.join("aift")),
+    let absolute = |k: &str| var(k).map(PathBuf::from).filter(|p| p.is_absolute());
+    if var("AIFT_CACHE_DIR").is_some_and(|v| v == "off") {
+        return None;
+    }
+    absolute("AIFT_CACHE_DIR")
+        .or_else(|| absolute("XDG_CACHE_HOME").map(|d| d.join("aift")))
+        .or_else(|| absolute("HOME").map(|h| h.join(".cache").join("aift")))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::cache_dir_from;
+    use std::path::PathBuf;
+
+    fn with(pairs: &[(&str, &str)]) -> Option<PathBuf> {
+        cache_dir_from(|k| {
+            pairs
+                .iter()
+                .find(|(n, _)| *n == k)
+                .map(|(_, v)| std::ffi::OsString::from(v))
+        })
+    }
+
+    #[test]
+    fn the_cache_is_never_relative_to_the_working_folder() {
+        assert_eq!(with(&[("AIFT_CACHE_DIR", "/c")]), Some(PathBuf::from("/c")));
+        assert_eq!(with(&[("AIFT_CACHE_DIR", "off"), ("HOME", "/h")]), None);
+        // Empty or relative values are skipped, down to none at all.
+        let home = Some(PathBuf::from("/h/.cache/aift"));
+        assert_eq!(with(&[("AIFT_CACHE_DIR", ""), ("HOME", "/h")]), home);
+        assert_eq!(with(&[("XDG_CACHE_HOME", "rel"), ("HOME", "/h")]), home);
+        assert_eq!(with(&[("XDG_CACHE_HOME", ""), ("HOME", "/h")]), home);
+        assert_eq!(
+            with(&[("XDG_CACHE_HOME", "/x"), ("HOME", "/h")]),
+            Some(PathBuf::from("/x/aift"))
+        );
+        assert_eq!(with(&[("HOME", "")]), None);
+        assert_eq!(with(&[("HOME", "h")]), None);
+        assert_eq!(with(&[]), None);
     }
 }

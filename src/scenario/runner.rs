@@ -182,6 +182,25 @@ impl Observer for NoObserver {
     fn iter(&mut self, _: &TickRecord<'_>) {}
 }
 
+/// Set by [`stop_all_runs`]: every run of this process stops at its next check.
+static STOP_ALL: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Ticks between checks of [`stop_all_runs`]'s flag.
+const STOP_CHECK_TICKS: u64 = 1024;
+
+/// Asks every run in this process, on any thread, to stop within [`STOP_CHECK_TICKS`] ticks
+/// (`true`), or lets runs go on again (`false`). Stopped runs end `stopped` (interrupted); a
+/// table, campaign or calibration they belong to finishes quickly with them. The Python package
+/// sets it on Ctrl-C while its long calls run, and clears it after.
+pub fn stop_all_runs(stop: bool) {
+    STOP_ALL.store(stop, std::sync::atomic::Ordering::Relaxed);
+}
+
+/// Whether [`stop_all_runs`] asked runs to stop.
+pub fn all_runs_stopping() -> bool {
+    STOP_ALL.load(std::sync::atomic::Ordering::Relaxed)
+}
+
 /// Several observers, each with its mode, called in order; itself an observer (of every tick).
 #[derive(Default)]
 pub struct Observers<'a>(pub Vec<(&'a mut dyn Observer, ObserverMode)>);
@@ -607,6 +626,13 @@ impl<'a> Run<'a> {
             }
             if let Some(reason) = observers.stop().or_else(|| extra.stop()) {
                 outcome = Outcome::Stopped { tick: k, reason };
+                break;
+            }
+            if k % STOP_CHECK_TICKS == 0 && all_runs_stopping() {
+                outcome = Outcome::Stopped {
+                    tick: k,
+                    reason: StopReason::Interrupted,
+                };
                 break;
             }
             sim.actuate(None);

@@ -345,6 +345,27 @@ impl TrajectoryRecorder {
             return Err(bad(1, "more than 100000 columns"));
         }
         let n_joints = header.iter().filter(|h| h.starts_with("mu_p")).count();
+        // The columns a run's trajectory always has: t, and per joint q, mu, target.
+        if n_joints == 0 {
+            return Err(bad(
+                1,
+                "no joint columns (mu_p1, ...): not a trajectory aift wrote",
+            ));
+        }
+        let mut required = vec!["t".to_string()];
+        for j in 1..=n_joints {
+            for prefix in ["q", "mu", "target"] {
+                required.push(format!("{prefix}{j}"));
+            }
+        }
+        if let Some(missing) = required.iter().find(|c| !header.contains(c)) {
+            return Err(bad(1, &format!("no column `{missing}`")));
+        }
+        for (i, h) in header.iter().enumerate() {
+            if header[..i].contains(h) {
+                return Err(bad(1, &format!("column `{h}` appears twice")));
+            }
+        }
         let schema = TrajectorySchema {
             columns: header.clone(),
             n_joints,
@@ -368,18 +389,35 @@ impl TrajectoryRecorder {
             if text.is_empty() {
                 continue;
             }
+            // Every row is checked, kept or not: a damaged late row is an error, not a gap.
+            let mut row = Vec::with_capacity(out.header.len());
+            for (c, v) in text.split(',').enumerate() {
+                let x = v.parse::<f64>().map_err(|_| {
+                    let column = out
+                        .header
+                        .get(c)
+                        .map_or("(beyond the header)", String::as_str);
+                    bad(number, &format!("column `{column}`: {v:?} is not a number"))
+                })?;
+                row.push(x);
+            }
+            if row.len() != out.header.len() {
+                return Err(bad(
+                    number,
+                    &format!(
+                        "{} values; the header has {} columns",
+                        row.len(),
+                        out.header.len()
+                    ),
+                ));
+            }
             if total.is_multiple_of(out.every) {
-                let row: Vec<f64> = text
-                    .split(',')
-                    .map(|v| v.parse::<f64>())
-                    .collect::<Result<_, _>>()
-                    .map_err(|_| bad(number, "not a number"))?;
-                if row.len() != out.header.len() {
-                    return Err(bad(number, "wrong number of columns"));
-                }
                 out.push_decimated(row);
             }
             total += 1;
+        }
+        if total == 0 {
+            return Err(bad(2, "no rows after the header"));
         }
         Ok((out, total))
     }
