@@ -2,8 +2,11 @@
 //! bounds, reads of devices, FIFOs and folders, silent wrong results made loud (limits, late
 //! faults and targets, duplicated methods, a blown-up simulation, dt beyond the duration), errors
 //! naming the right key (and `--set` when the value came from it), bad output locations, the URDF
-//! items, and a calibration accepted whatever its alpha or isolation. Every refusal is exit 2,
-//! before any work, with nothing written. (Half-written folders: tests/output_folders.rs; fuzzing:
+//! items, and a calibration accepted whatever its alpha or isolation; round three (issue 30):
+//! outputs that are devices, FIFOs or links, closed and full stdout, merge records checked
+//! against their config, grids counted, named and deduplicated before expansion, bounded thread
+//! counts, init's refusals, damaged report inputs. Every refusal is exit 2, before any work, with
+//! nothing written. (Half-written folders: tests/output_folders.rs; fuzzing:
 //! tests/scenario_fuzz.rs and tests/urdf_validation.rs.)
 
 mod common;
@@ -481,6 +484,15 @@ fn outputs_never_replace_devices_fifos_or_links() {
             assert_eq!(file_type(target), before, "{args:?} replaced {t}");
         }
     }
+    // A folder, or a path ending in `/`, is not a file: exit 2 before the question of --force.
+    std::fs::create_dir(d.join("sdir")).unwrap();
+    for out in ["sdir", "sdir/", "new/"] {
+        let o = aift(&["init", "--urdf", urdf, "--out", out], d);
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{out}: {stderr}");
+        assert!(!stderr.contains("--force"), "{out}: {stderr}");
+    }
+    assert!(!d.join("new").exists());
     // Nothing was left beside them (staging, locks).
     let left: Vec<_> = std::fs::read_dir(d)
         .unwrap()
@@ -1042,4 +1054,27 @@ fn report_refuses_damaged_files_naming_the_row_and_the_column() {
     refused(&["report", "c2"], &["campaign.json", "`cells`"], d, "none");
     edit_json("run", "r1", "summary.json", &|v| v["seed"] = "one".into());
     refused(&["report", "r1"], &["summary.json", "`seed`"], d, "none");
+}
+
+#[test]
+fn a_huge_thread_count_is_bounded_with_a_warning() {
+    // Issue 30, class 7: RAYON_NUM_THREADS=100000 spent minutes creating threads.
+    let tmp = tempfile::tempdir().unwrap();
+    let healthy = scenario("paper_healthy.toml");
+    for asked in ["100000", "1000000000000"] {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_aift"))
+            .args(["run", &healthy, "--set", "duration=0.5", "--out", asked])
+            .current_dir(tmp.path())
+            .env("AIFT_CACHE_DIR", "off")
+            .env("RAYON_NUM_THREADS", asked)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(0), "{stderr}");
+        let max = aift::max_worker_threads();
+        assert!(
+            stderr.contains(&format!("RAYON_NUM_THREADS={asked} is more than {max}")),
+            "{stderr}"
+        );
+    }
 }

@@ -146,6 +146,14 @@ impl Campaign {
     }
 }
 
+impl CampaignConfig {
+    /// Checks the campaign file's own fields and its grid's size, without loading any arm;
+    /// returns the methods it runs. (`Campaign::load` does this first.)
+    pub fn check(&self, path: &Path) -> Result<Vec<Method>, ScenarioError> {
+        validate(self, path)
+    }
+}
+
 /// Checks the campaign file's own fields (name, seeds, arms, verdict, onsets, methods, reaching);
 /// returns the methods it runs.
 fn validate(config: &CampaignConfig, path: &Path) -> Result<Vec<Method>, ScenarioError> {
