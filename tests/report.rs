@@ -122,7 +122,7 @@ fn report_refuses_what_is_not_an_aift_folder() {
         ("file.txt", "not a folder"),
         ("missing", "cannot read"),
         ("bad", "`format_version`: missing"),
-        ("garbage", "line 2: not a number"),
+        ("garbage", "summary.json: `scenario`: missing"),
     ] {
         let out = aift(&["report", arg], d);
         let err = String::from_utf8_lossy(&out.stderr);
