@@ -16,7 +16,7 @@ fn small_campaign(dir: &Path) -> std::path::PathBuf {
         r#"
 name = "small"
 seeds = 2
-methods = ["no-ft", "pl-always", "deterministic", "oracle"]
+methods = ["no-ft", "oracle", "deterministic", "pl-always"]
 defaults = {{ duration = 10.0, plant = {{ engine = "articulated" }}, detector = {{ calibration_runs = 8 }} }}
 channels = ["enc*", "tach*"]
 

@@ -769,7 +769,8 @@ fn campaign_grids_are_counted_named_and_deduplicated_before_any_run() {
         ));
     }
     huge = huge.replace("channels = [", "channels = [\"enc*\", ");
-    check("huge", huge, &["cells", "at most 100000"]);
+    let most = format!("at most {}", aift::scenario::campaign::MAX_CELLS);
+    check("huge", huge, &["cells", &most]);
     check(
         "slash",
         base.replace("name = \"paper\"", "name = \"../up\""),
@@ -804,6 +805,17 @@ fn campaign_grids_are_counted_named_and_deduplicated_before_any_run() {
         base.replace("onsets = [\"moving\"]", "onsets = [\"moving\", \"moving\"]"),
         &["kinds[0].onsets[1]"],
     );
+    let pair = |label: &str, faults: &str| {
+        format!("{base}\n[[pairs]]\nlabel = \"{label}\"\nfaults = {faults}\n")
+    };
+    let two = r#"[{ kind = "freeze", channel = "enc1", start = 8.0 }, { kind = "bias", channel = "cam", offset = 0.04, start = 8.5 }]"#;
+    check("pair_healthy", pair("healthy", two), &["pairs[0].label"]);
+    check(
+        "pair_like_cell",
+        pair("enc1 freeze moving", two),
+        &["pairs[0].label"],
+    );
+    check("pair_empty", pair("nothing", "[]"), &["pairs[0].faults"]);
     check(
         "empty",
         base.replace("[[kinds]]\nkind = \"freeze\"\nonsets = [\"moving\"]", "")

@@ -187,7 +187,18 @@ pub fn merge(shards: &[CampaignRecords]) -> Result<CampaignRecords, String> {
         .iter()
         .flat_map(|s| s.reaching.iter().cloned())
         .collect();
-    reaching.sort_by(|a, b| a.job.cmp(&b.job).then(a.method.cmp(&b.method)));
+    // As an unsharded run lists them: by job, then in the campaign's order of methods.
+    let methods = first
+        .config
+        .methods
+        .clone()
+        .unwrap_or_else(|| crate::scenario::Method::ALL.to_vec());
+    let rank = |m: &crate::scenario::Method| methods.iter().position(|x| x == m);
+    reaching.sort_by(|a, b| {
+        a.job
+            .cmp(&b.job)
+            .then(rank(&a.method).cmp(&rank(&b.method)))
+    });
     // Every covered job is below `jobs` (checked), so the counts tell completeness; nothing is
     // allocated per job of the config.
     if covered.len() != first.jobs {

@@ -37,9 +37,13 @@ pub use reaching::{ReachingRun, ReachingTask};
 pub use run::{CampaignRecords, CampaignRun, Shard, Verdict, run_campaign};
 pub use summary::{CellSummary, MethodSummary, summarise, worse_than_no_ft};
 
-/// Most cells a campaign may expand to, and most jobs (cells x methods x seeds).
-pub const MAX_CELLS: usize = 100_000;
-pub const MAX_JOBS: usize = 10_000_000;
+/// Most cells a campaign may expand to, and most jobs (cells x methods x seeds, and reaching
+/// tasks x methods): sized so that what a campaign writes stays within what is read back
+/// (campaign.json for the report, about 630 bytes per cell and method, under 256 MiB; each arm's
+/// heatmap under 64 MiB; records.json, about 300 bytes per run, under the 1 GiB `aift merge`
+/// reads).
+pub const MAX_CELLS: usize = 20_000;
+pub const MAX_JOBS: usize = 2_000_000;
 /// Most seeds per cell.
 pub const MAX_SEEDS: usize = 10_000;
 /// Version of campaign.json's layout.
@@ -321,6 +325,29 @@ fn check_grid(config: &CampaignConfig, path: &Path, methods: usize) -> Result<()
             return Err(bad(
                 &format!("pairs[{i}].label"),
                 format!("{:?} is the label of an earlier pair", p.label),
+            ));
+        }
+        // A pair's label must not be taken for another cell's: `healthy`, or `CHANNEL KIND
+        // ONSET` as the grid's cells are labelled.
+        let onset_word = ["moving", "rest", "rest-then-motion"]
+            .iter()
+            .any(|o| p.label.ends_with(&format!(" {o}")));
+        if p.label == "healthy" || p.label.trim().is_empty() || onset_word {
+            return Err(bad(
+                &format!("pairs[{i}].label"),
+                format!(
+                    "{:?} is empty or reads as another cell's label (`healthy`, or a channel, \
+                     kind and onset)",
+                    p.label
+                ),
+            ));
+        }
+        if p.faults.is_empty() {
+            return Err(bad(
+                &format!("pairs[{i}].faults"),
+                "lists no fault (a pair is two or more faults; `healthy = true` gives the \
+                 healthy cell)"
+                    .into(),
             ));
         }
     }

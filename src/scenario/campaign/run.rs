@@ -289,8 +289,8 @@ fn calibrations(
     Ok(out)
 }
 
-/// Runs the jobs of `shard` (and, with the whole campaign, the reaching benchmark), in parallel,
-/// in canonical order; `progress(done, total)` is called after each job.
+/// Runs the jobs of `shard` (cell jobs and reaching jobs alike: job j belongs to shard
+/// j mod N + 1), in parallel, in canonical order; `progress(done, total)` is called after each job.
 pub fn run_campaign(
     campaign: &Campaign,
     shard: Shard,
