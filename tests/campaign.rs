@@ -322,3 +322,52 @@ fn campaign_scenario_keys_are_typed_and_named_by_their_table() {
         "{e}"
     );
 }
+
+#[test]
+fn a_campaign_of_the_reaching_benchmark_alone_writes_its_files_and_merges() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let text = format!(
+        r#"
+name = "reach_only"
+seeds = 1
+methods = ["oracle", "no-ft"]
+healthy = false
+kinds = []
+defaults = {{ duration = 2.0, plant = {{ engine = "articulated" }} }}
+[[arms]]
+name = "paper"
+scenario = "{}"
+[reaching]
+tasks = 3
+duration = 1.0
+"#,
+        common::repo("assets/scenarios/paper_healthy.toml").display()
+    );
+    std::fs::write(d.join("c.toml"), text).unwrap();
+    common::aift_ok(&["campaign", "c.toml", "--out", "whole"], d);
+    for k in 1..=2 {
+        let shard = format!("{k}/2");
+        common::aift_ok(
+            &[
+                "campaign",
+                "c.toml",
+                "--shard",
+                &shard,
+                "--out",
+                &format!("s{k}"),
+            ],
+            d,
+        );
+    }
+    common::aift_ok(&["merge", "s1", "s2", "--out", "merged"], d);
+    for name in ["reaching.csv", "campaign.json", "report.html"] {
+        assert_eq!(
+            std::fs::read(d.join("whole").join(name)).unwrap(),
+            std::fs::read(d.join("merged").join(name)).unwrap(),
+            "{name}"
+        );
+    }
+    let csv = std::fs::read_to_string(d.join("whole/reaching.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 1 + 3 * 2);
+}
