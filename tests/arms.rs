@@ -240,3 +240,38 @@ fn init_refuses_a_joint_too_weak_to_hold_its_load_naming_it() {
     assert!(err.contains("gravity torque"), "{err}");
     assert!(!out.exists());
 }
+
+#[test]
+fn init_gains_do_not_depend_on_the_urdf_coulomb_friction() {
+    // Issue 24: an earlier init probed the mass matrix by finite differences of the forward
+    // dynamics, which the Coulomb friction corrupted (kd up to 7.1e6 on a 6-DOF arm). The gains
+    // come from the mass matrix and gravity alone; friction is the plant's and the model's.
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let text = std::fs::read_to_string(common::repo("urdf/panda_7dof.urdf")).unwrap();
+    let rough = text.replace(r#"friction="0"/>"#, r#"friction="4.0"/>"#);
+    assert!(rough != text);
+    std::fs::write(d.join("smooth.urdf"), &text).unwrap();
+    std::fs::write(d.join("rough.urdf"), &rough).unwrap();
+    let gains = |name: &str| -> Vec<String> {
+        common::aift_ok(
+            &[
+                "init",
+                "--urdf",
+                &format!("{name}.urdf"),
+                "--out",
+                &format!("{name}.toml"),
+            ],
+            d,
+        );
+        std::fs::read_to_string(d.join(format!("{name}.toml")))
+            .unwrap()
+            .lines()
+            .filter(|l| ["kp =", "kd =", "ki ="].iter().any(|k| l.starts_with(k)))
+            .map(String::from)
+            .collect()
+    };
+    let (smooth, rough) = (gains("smooth"), gains("rough"));
+    assert_eq!(smooth.len(), 3);
+    assert_eq!(smooth, rough);
+}
