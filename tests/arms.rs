@@ -275,3 +275,51 @@ fn init_gains_do_not_depend_on_the_urdf_coulomb_friction() {
     assert_eq!(smooth.len(), 3);
     assert_eq!(smooth, rough);
 }
+
+#[test]
+fn init_handles_a_pendulum_whose_joints_share_one_origin() {
+    // Issue 24: five continuous joints about x, every joint origin at one point (a public
+    // package's 5-link pendulum). An earlier init wrote kp = 1.5e15 from a "joint inertia" of
+    // 2.4e13 kg m^2 for 2 kg links; the gains now come from the mass matrix.
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let mut links = vec![r#"<link name="base"/>"#.to_string()];
+    let mut joints = Vec::new();
+    let mut parent = "base".to_string();
+    for i in 1..=5 {
+        links.push(format!(
+            r#"<link name="l{i}"><inertial><origin xyz="0 0 -0.5"/><mass value="2.0"/>
+<inertia ixx="0.02" iyy="0.02" izz="0.001" ixy="0" ixz="0" iyz="0"/></inertial>
+<collision><origin xyz="0 0 -0.5"/><geometry><cylinder radius="0.02" length="1.0"/></geometry></collision></link>"#
+        ));
+        joints.push(format!(
+            r#"<joint name="j{i}" type="continuous"><parent link="{parent}"/><child link="l{i}"/>
+<origin xyz="0 0 0"/><axis xyz="1 0 0"/><dynamics damping="0.1"/></joint>"#
+        ));
+        parent = format!("l{i}");
+    }
+    let urdf = format!(
+        "<robot name=\"pendulum\">{}{}</robot>",
+        links.join("\n"),
+        joints.join("\n")
+    );
+    std::fs::write(d.join("pendulum.urdf"), urdf).unwrap();
+    common::aift_ok(&["init", "--urdf", "pendulum.urdf", "--out", "p.toml"], d);
+    let text = std::fs::read_to_string(d.join("p.toml")).unwrap();
+    let sc = aift::scenario::parse_scenario(&text, &d.join("p.toml"), &[]).unwrap();
+    let g = &sc.controller.gains;
+    assert!(
+        g.kp.iter().chain(&g.kd).all(|k| k.is_finite() && *k < 1e4),
+        "{g:?}"
+    );
+    let out = common::aift_ok(
+        &["run", "p.toml", "--method", "no-ft", "--out", "r", "--json"],
+        d,
+    );
+    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(summary["outcome"], "completed");
+    assert!(
+        summary["max_final_error"].as_f64().unwrap() < 0.01,
+        "{summary}"
+    );
+}
