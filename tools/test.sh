@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Every test: the Rust suite (`cargo test --release`), then the Python package and the HTML
-# report in a browser (pytest, in a fresh virtual environment under target/, with the package
+# Every test: the Rust suite (`cargo test --release`), a single-node Slurm running the README's
+# job array (tools/slurm_test.sh), then the Python package and the HTML report in a browser (pytest, in a fresh virtual environment under target/, with the package
 # installed by `pip install ./python`). Installs what they need on a fresh machine: pytest,
 # numpy, pandas, gymnasium and playwright from PyPI, and Debian's chromium (plus python3-venv
 # if venv is missing) with apt-get, as root or with sudo.
@@ -25,6 +25,11 @@ apt_install() {
 cargo test --release
 # The tests built target/release/aift; build it only if they did not.
 [ -x target/release/aift ] || cargo build --release --bin aift
+
+# A real scheduler: the README's Slurm job array, scaled down, merged and compared byte for byte
+# with the unsharded campaign (installs Debian's slurm-wlm and munge if missing).
+echo "== tools/slurm_test.sh" >&2
+tools/slurm_test.sh
 
 [ -x /usr/bin/chromium ] || apt_install chromium
 python3 -m venv --help >/dev/null 2>&1 || apt_install python3-venv
