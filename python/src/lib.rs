@@ -228,7 +228,13 @@ impl PyScenario {
             overrides.push(format!("{key}={text}"));
             Self::build(this.source.clone(), overrides)?
         };
-        *slf.borrow_mut() = next;
+        // A run in another thread holds the scenario: refuse rather than panic.
+        *slf.try_borrow_mut().map_err(|_| {
+            AiftError::new_err(
+                "Scenario.set: a run in another thread is using this scenario; set() a copy() \
+                 instead",
+            )
+        })? = next;
         Ok(slf)
     }
 
@@ -330,7 +336,9 @@ fn interruptible<T: Send>(py: Python<'_>, work: impl FnOnce() -> T + Send) -> Py
             py.detach(|| std::thread::sleep(std::time::Duration::from_millis(50)));
         }
         let result = handle.join();
-        aift::scenario::runner::stop_all_runs(false);
+        if signal.is_some() {
+            aift::scenario::runner::stop_all_runs(false);
+        }
         match (signal, result) {
             (Some(e), _) => Err(e),
             (None, Ok(value)) => Ok(value),
@@ -895,8 +903,9 @@ fn calibrate_to(
 }
 
 /// Trains the camera GP of the scenario on `points` points (default: the scenario's) and writes
-/// it to `out` (as `aift train-gp`); returns {hyperparameters, log_marginal_likelihood,
-/// held_out_rms, held_out_max} as JSON text.
+/// it to `out` (as `aift train-gp`); returns {points, length_scales, signal_std, noise_std,
+/// log_marginal_likelihood, evaluations, held_out_rms, held_out_max, held_out_points} as JSON
+/// text.
 #[pyfunction]
 #[pyo3(signature = (scenario, out, points = None))]
 fn train_gp_to(

@@ -141,3 +141,31 @@ def test_outputs_that_are_fifos_are_refused_and_left_alone(tmp_path):
         with pytest.raises(aift.BadInput, match="FIFO"):
             call()
         assert fifo.is_fifo()
+
+
+def test_setting_a_scenario_that_another_thread_runs_is_an_error_not_a_panic():
+    sc = aift.Scenario.default(["duration=30.0", "plant.engine=\"articulated\"", "faults=[]"])
+    aift.run(sc.copy().set("duration", 0.1), method="no-ft")  # the GP trained
+    started = threading.Event()
+    done = {}
+
+    def work():
+        started.set()
+        done["r"] = aift.run(sc, method="no-ft", trajectory=False)
+
+    t = threading.Thread(target=work)
+    t.start()
+    started.wait()
+    import time
+
+    errors = []
+    deadline = time.monotonic() + 5.0
+    while t.is_alive() and time.monotonic() < deadline and not errors:
+        try:
+            sc.set("seed", 4)
+        except aift.AiftError as e:
+            errors.append(e)
+        time.sleep(0.01)
+    t.join()
+    assert errors and "another thread" in str(errors[0])
+    assert done["r"].summary["outcome"] == "completed"

@@ -76,13 +76,13 @@ pub fn calibrate(setup: &RunSetup, runs: usize) -> Result<Calibration, ScenarioE
 /// Refuses a calibration too large to hold (checked before any run).
 pub fn check_size(setup: &RunSetup, runs: usize) -> Result<(), ScenarioError> {
     let values = calibration_size(&setup.layout, setup.scenario().ticks() as usize);
-    // While it is accumulated, each worker thread holds three times the calibration's size.
-    if values.saturating_mul(3) > MAX_CALIBRATION_VALUES.saturating_mul(3) {
+    if values > MAX_CALIBRATION_VALUES {
         return Err(ScenarioError::Invalid {
             path: setup.loaded.path.clone(),
             field: "duration".into(),
             message: format!(
-                "a detector calibration of {} ticks would hold {values} numbers; at most                  {MAX_CALIBRATION_VALUES} (shorten the run or use a method without a detector)",
+                "a detector calibration of {} ticks would hold {values} numbers; at most \
+                 {MAX_CALIBRATION_VALUES} (shorten the run or use a method without a detector)",
                 setup.scenario().ticks()
             ),
         });

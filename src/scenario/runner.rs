@@ -182,23 +182,30 @@ impl Observer for NoObserver {
     fn iter(&mut self, _: &TickRecord<'_>) {}
 }
 
-/// Set by [`stop_all_runs`]: every run of this process stops at its next check.
-static STOP_ALL: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+/// Requests from [`stop_all_runs`] in force: while any is, every run of this process stops at
+/// its next check.
+static STOP_ALL: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
 
-/// Ticks between checks of [`stop_all_runs`]'s flag.
+/// Ticks between checks of [`stop_all_runs`]'s requests.
 const STOP_CHECK_TICKS: u64 = 1024;
 
 /// Asks every run in this process, on any thread, to stop within [`STOP_CHECK_TICKS`] ticks
-/// (`true`), or lets runs go on again (`false`). Stopped runs end `stopped` (interrupted); a
-/// table, campaign or calibration they belong to finishes quickly with them. The Python package
-/// sets it on Ctrl-C while its long calls run, and clears it after.
+/// (`true`), or withdraws one such request (`false`; each caller withdraws only its own, so runs
+/// go on once every request is withdrawn). Stopped runs end `stopped` (interrupted); a table,
+/// campaign or calibration they belong to finishes quickly with them. The Python package makes
+/// a request on Ctrl-C while its long calls run, and withdraws it after.
 pub fn stop_all_runs(stop: bool) {
-    STOP_ALL.store(stop, std::sync::atomic::Ordering::Relaxed);
+    use std::sync::atomic::Ordering::SeqCst;
+    if stop {
+        STOP_ALL.fetch_add(1, SeqCst);
+    } else {
+        let _ = STOP_ALL.fetch_update(SeqCst, SeqCst, |n| n.checked_sub(1));
+    }
 }
 
-/// Whether [`stop_all_runs`] asked runs to stop.
+/// Whether a [`stop_all_runs`] request is in force.
 pub fn all_runs_stopping() -> bool {
-    STOP_ALL.load(std::sync::atomic::Ordering::Relaxed)
+    STOP_ALL.load(std::sync::atomic::Ordering::SeqCst) > 0
 }
 
 /// Several observers, each with its mode, called in order; itself an observer (of every tick).
