@@ -261,6 +261,7 @@ fn init_gains_do_not_depend_on_the_urdf_coulomb_friction() {
                 &format!("{name}.urdf"),
                 "--out",
                 &format!("{name}.toml"),
+                "--no-check",
             ],
             d,
         );
@@ -274,6 +275,19 @@ fn init_gains_do_not_depend_on_the_urdf_coulomb_friction() {
     let (smooth, rough) = (gains("smooth"), gains("rough"));
     assert_eq!(smooth.len(), 3);
     assert_eq!(smooth, rough);
+    // Gains that ignore friction may not overcome it: init's check run says so (4 N m of
+    // Coulomb friction holds the light wrist joint off its target) and writes nothing.
+    let o = common::aift_in(
+        &["init", "--urdf", "rough.urdf", "--out", "checked.toml"],
+        d,
+    );
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("check run") && stderr.contains("off its last target"),
+        "{stderr}"
+    );
+    assert!(!d.join("checked.toml").exists());
 }
 
 #[test]

@@ -926,6 +926,42 @@ fn init_refuses_what_cannot_work_and_passes_warnings_on() {
         d,
         "t.toml",
     );
+    // A 30-joint chain whose derived loop does not settle: init's check run refuses it, naming
+    // the joint, and --no-check writes it anyway.
+    let mut chain = vec![r#"<link name="base"/>"#.to_string()];
+    let mut parent = "base".to_string();
+    for i in 1..=30 {
+        let axis = if i % 2 == 1 { "0 0 1" } else { "0 1 0" };
+        chain.push(format!(
+            r#"<link name="c{i}"><inertial><origin xyz="0 0 0.05"/><mass value="0.3"/>
+<inertia ixx="0.0005" iyy="0.0005" izz="0.0001" ixy="0" ixz="0" iyz="0"/></inertial>
+<collision><origin xyz="0 0 0.05"/><geometry><box size="0.03 0.03 0.1"/></geometry></collision></link>
+<joint name="q{i}" type="revolute"><parent link="{parent}"/><child link="c{i}"/><origin xyz="0 0 0.1"/>
+<axis xyz="{axis}"/><limit lower="-2" upper="2" effort="200" velocity="3"/><dynamics damping="0.5"/></joint>"#
+        ));
+        parent = format!("c{i}");
+    }
+    write(
+        "c30.urdf",
+        format!("<robot name=\"c30\">{}</robot>", chain.join("\n")),
+    );
+    refused(
+        &["init", "--urdf", "c30.urdf", "--out", "c30.toml"],
+        &["c30.toml", "check run", "off its last target", "--no-check"],
+        d,
+        "c30.toml",
+    );
+    common::aift_ok(
+        &[
+            "init",
+            "--urdf",
+            "c30.urdf",
+            "--out",
+            "c30.toml",
+            "--no-check",
+        ],
+        d,
+    );
     // Loader warnings reach the user as they do in check-urdf and run.
     write(
         "mimic.urdf",

@@ -224,6 +224,58 @@ pub fn init_scenario(urdf: &Path, options: &InitOptions) -> Result<String, Scena
     Ok(render(&scenario, &notes))
 }
 
+/// Largest final joint error (rad or m) the check run of [`check_scenario`] may end with.
+pub const CHECK_TOLERANCE: f64 = 0.01;
+
+/// Runs the scenario `text` (as [`init_scenario`] wrote it, to be saved at `path`) once, healthy,
+/// with fixed precisions (`no-ft`) on the articulated engine, and refuses it when the run does
+/// not complete or ends more than [`CHECK_TOLERANCE`] off its last target on some joint: init's
+/// gains come from the arm's dynamics, but whether the loop they close settles (with the
+/// u-AIC's belief and the camera model in it) is only known by running it. Costs one run and
+/// the camera GP's training.
+pub fn check_scenario(text: &str, path: &Path) -> Result<(), ScenarioError> {
+    let overrides = [
+        "plant.engine=\"articulated\"".to_string(),
+        "precision.method=\"no-ft\"".to_string(),
+    ];
+    let scenario = super::parse_scenario(text, path, &overrides)?;
+    let base_dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."))
+        .to_path_buf();
+    let loaded = super::LoadedScenario {
+        scenario,
+        path: path.to_path_buf(),
+        base_dir: Some(base_dir),
+    };
+    let setup = super::RunSetup::prepare(loaded)?;
+    let result = super::runner::Run::new(&setup, super::Method::NoFt).execute()?;
+    let worst = result
+        .final_error_per_joint
+        .iter()
+        .enumerate()
+        .max_by(|a, b| a.1.total_cmp(b.1))
+        .map(|(j, e)| (setup.model.joints[j].name.clone(), *e));
+    let completed = result.outcome.name() == "completed";
+    if completed && result.max_final_error <= CHECK_TOLERANCE {
+        return Ok(());
+    }
+    let (joint, error) = worst.unwrap_or_default();
+    Err(ScenarioError::Invalid {
+        path: path.to_path_buf(),
+        field: "controller.gains".into(),
+        message: format!(
+            "a check run of the scenario init derived (healthy, no-ft, articulated engine, {} s) \
+             ends {} with joint '{joint}' {error:.4} off its last target (at most \
+             {CHECK_TOLERANCE}): init writes only scenarios that reach their targets (--no-check \
+             writes it anyway, to tune by hand)",
+            setup.scenario().duration,
+            result.outcome.name(),
+        ),
+    })
+}
+
 /// Narrowest joint range (rad or m) init writes targets for: 20 standard deviations of the
 /// default encoder noise.
 const MIN_RANGE: f64 = 0.02;

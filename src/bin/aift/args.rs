@@ -128,6 +128,10 @@ pub struct InitArgs {
     /// Replace an existing file.
     #[arg(long)]
     pub force: bool,
+    /// Write the scenario without the check run (a healthy no-ft run on the articulated engine
+    /// that must reach its targets), e.g. to tune its gains by hand.
+    #[arg(long)]
+    pub no_check: bool,
 }
 
 #[derive(Debug, Args)]

@@ -386,6 +386,10 @@ fn init(args: InitArgs) -> Result<(), Failure> {
         },
     )
     .map_err(bad_input)?;
+    if !args.no_check {
+        errln!("checking the scenario with one healthy run (no-ft, articulated engine)...");
+        scenario::init::check_scenario(&text, &args.out).map_err(bad_input)?;
+    }
     staged.commit_bytes(text.as_bytes()).map_err(file_failure)?;
     outln!(
         "wrote {} for {}; run it with `aift run {}`",
