@@ -148,118 +148,86 @@ fn apply<T: Tree>(root: &mut T, edit: &Edit) {
     walk(root, target, &mut seen, edit);
 }
 
-impl Tree for toml::Value {
-    fn children_mut(&mut self) -> Vec<&mut Self> {
-        match self {
-            toml::Value::Table(t) => t.iter_mut().map(|(_, v)| v).collect(),
-            toml::Value::Array(a) => a.iter_mut().collect(),
-            _ => vec![],
-        }
-    }
-    fn from_scalar(s: &Scalar) -> Self {
-        match s {
-            Scalar::Int(i) => toml::Value::Integer(*i),
-            Scalar::Float(f) => toml::Value::Float(*f),
-            Scalar::Text(t) => toml::Value::String(t.clone()),
-            Scalar::Bool(b) => toml::Value::Boolean(*b),
-        }
-    }
-    fn remove_child(&mut self, k: usize) -> bool {
-        match self {
-            toml::Value::Table(t) => {
-                let key = t.keys().nth(k).cloned();
-                key.is_some_and(|key| t.remove(&key).is_some())
-            }
-            toml::Value::Array(a) if k < a.len() => {
-                a.remove(k);
-                true
-            }
-            _ => false,
-        }
-    }
-    fn repeat_child(&mut self, k: usize, n: usize) -> bool {
-        match self {
-            toml::Value::Array(a) if k < a.len() => {
-                let item = a[k].clone();
-                for _ in 1..n {
-                    a.push(item.clone());
+/// The tree operations on one document type: its map and list variants and how a scalar is
+/// written in it (TOML and JSON differ only there).
+macro_rules! impl_tree {
+    ($value:ty, $map:path, $list:path, $from_scalar:expr) => {
+        impl Tree for $value {
+            fn children_mut(&mut self) -> Vec<&mut Self> {
+                match self {
+                    $map(m) => m.iter_mut().map(|(_, v)| v).collect(),
+                    $list(a) => a.iter_mut().collect(),
+                    _ => vec![],
                 }
-                true
             }
-            _ => false,
+            fn from_scalar(s: &Scalar) -> Self {
+                $from_scalar(s)
+            }
+            fn remove_child(&mut self, k: usize) -> bool {
+                match self {
+                    $map(m) => {
+                        let key = m.keys().nth(k).cloned();
+                        key.is_some_and(|key| m.remove(&key).is_some())
+                    }
+                    $list(a) if k < a.len() => {
+                        a.remove(k);
+                        true
+                    }
+                    _ => false,
+                }
+            }
+            fn repeat_child(&mut self, k: usize, n: usize) -> bool {
+                match self {
+                    $list(a) if k < a.len() => {
+                        let item = a[k].clone();
+                        for _ in 1..n {
+                            a.push(item.clone());
+                        }
+                        true
+                    }
+                    _ => false,
+                }
+            }
+            fn empty(&mut self) {
+                match self {
+                    $map(m) => m.clear(),
+                    $list(a) => a.clear(),
+                    _ => {}
+                }
+            }
         }
-    }
-    fn empty(&mut self) {
-        match self {
-            toml::Value::Table(t) => t.clear(),
-            toml::Value::Array(a) => a.clear(),
-            _ => {}
-        }
-    }
+    };
 }
 
-impl Tree for serde_json::Value {
-    fn children_mut(&mut self) -> Vec<&mut Self> {
-        match self {
-            serde_json::Value::Object(o) => o.values_mut().collect(),
-            serde_json::Value::Array(a) => a.iter_mut().collect(),
-            _ => vec![],
-        }
+impl_tree!(
+    toml::Value,
+    toml::Value::Table,
+    toml::Value::Array,
+    |s: &Scalar| match s {
+        Scalar::Int(i) => toml::Value::Integer(*i),
+        Scalar::Float(f) => toml::Value::Float(*f),
+        Scalar::Text(t) => toml::Value::String(t.clone()),
+        Scalar::Bool(b) => toml::Value::Boolean(*b),
     }
-    fn from_scalar(s: &Scalar) -> Self {
-        match s {
-            Scalar::Int(i) => (*i).into(),
-            // JSON has no NaN: serde_json writes null for it.
-            Scalar::Float(f) => serde_json::Number::from_f64(*f)
-                .map(serde_json::Value::Number)
-                .unwrap_or(serde_json::Value::Null),
-            Scalar::Text(t) => t.clone().into(),
-            Scalar::Bool(b) => (*b).into(),
-        }
+);
+
+impl_tree!(
+    serde_json::Value,
+    serde_json::Value::Object,
+    serde_json::Value::Array,
+    // JSON has no NaN: serde_json writes null for it.
+    |s: &Scalar| match s {
+        Scalar::Int(i) => serde_json::Value::from(*i),
+        Scalar::Float(f) => serde_json::Number::from_f64(*f)
+            .map(serde_json::Value::Number)
+            .unwrap_or(serde_json::Value::Null),
+        Scalar::Text(t) => serde_json::Value::from(t.clone()),
+        Scalar::Bool(b) => serde_json::Value::from(*b),
     }
-    fn remove_child(&mut self, k: usize) -> bool {
-        match self {
-            serde_json::Value::Object(o) => {
-                let key = o.keys().nth(k).cloned();
-                key.is_some_and(|key| o.remove(&key).is_some())
-            }
-            serde_json::Value::Array(a) if k < a.len() => {
-                a.remove(k);
-                true
-            }
-            _ => false,
-        }
-    }
-    fn repeat_child(&mut self, k: usize, n: usize) -> bool {
-        match self {
-            serde_json::Value::Array(a) if k < a.len() => {
-                let item = a[k].clone();
-                for _ in 1..n {
-                    a.push(item.clone());
-                }
-                true
-            }
-            _ => false,
-        }
-    }
-    fn empty(&mut self) {
-        match self {
-            serde_json::Value::Object(o) => o.clear(),
-            serde_json::Value::Array(a) => a.clear(),
-            _ => {}
-        }
-    }
-}
+);
 
 fn bundled_campaigns() -> Vec<(PathBuf, toml::Value)> {
-    let dir = common::repo("assets/campaigns");
-    let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|e| e == "toml"))
-        .collect();
-    files.sort();
-    files
+    common::toml_files("assets/campaigns")
         .into_iter()
         .map(|p| {
             let v: toml::Value = toml::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();

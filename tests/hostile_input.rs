@@ -506,10 +506,7 @@ fn outputs_never_replace_devices_fifos_or_links() {
 fn with_closed_stdout(args: &[&str], dir: &Path) -> std::process::Output {
     let (reader, writer) = std::io::pipe().unwrap();
     drop(reader);
-    std::process::Command::new(env!("CARGO_BIN_EXE_aift"))
-        .args(args)
-        .current_dir(dir)
-        .env("AIFT_CACHE_DIR", "off")
+    common::aift_command(args, dir)
         .stdout(writer)
         .stderr(std::process::Stdio::piped())
         .output()
@@ -585,9 +582,7 @@ fn a_closed_pipe_ends_the_output_and_a_full_one_is_an_error_never_a_panic() {
                 .unwrap()
         };
         for args in &quick[..5] {
-            let o = std::process::Command::new(env!("CARGO_BIN_EXE_aift"))
-                .args(args)
-                .current_dir(d)
+            let o = common::aift_command(args, d)
                 .stdout(full())
                 .output()
                 .unwrap();
@@ -595,17 +590,12 @@ fn a_closed_pipe_ends_the_output_and_a_full_one_is_an_error_never_a_panic() {
             assert_eq!(o.status.code(), Some(1), "{args:?}: {stderr}");
             assert!(stderr.contains("writing to stdout"), "{args:?}: {stderr}");
         }
-        let o = std::process::Command::new(env!("CARGO_BIN_EXE_aift"))
-            .args(["check-urdf", "missing.urdf"])
-            .current_dir(d)
+        let o = common::aift_command(&["check-urdf", "missing.urdf"], d)
             .stderr(full())
             .output()
             .unwrap();
         assert_eq!(o.status.code(), Some(2));
-        let o = std::process::Command::new(env!("CARGO_BIN_EXE_aift"))
-            .args(["run", &healthy, "--set", short, "--out", "r2"])
-            .current_dir(d)
-            .env("AIFT_CACHE_DIR", "off")
+        let o = common::aift_command(&["run", &healthy, "--set", short, "--out", "r2"], d)
             .stderr(full())
             .output()
             .unwrap();
@@ -1110,10 +1100,8 @@ fn a_huge_thread_count_is_bounded_with_a_warning() {
     let tmp = tempfile::tempdir().unwrap();
     let healthy = scenario("paper_healthy.toml");
     for asked in ["100000", "1000000000000"] {
-        let o = std::process::Command::new(env!("CARGO_BIN_EXE_aift"))
-            .args(["run", &healthy, "--set", "duration=0.5", "--out", asked])
-            .current_dir(tmp.path())
-            .env("AIFT_CACHE_DIR", "off")
+        let args = ["run", &healthy, "--set", "duration=0.5", "--out", asked];
+        let o = common::aift_command(&args, tmp.path())
             .env("RAYON_NUM_THREADS", asked)
             .output()
             .unwrap();

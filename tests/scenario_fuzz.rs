@@ -13,14 +13,7 @@ use aift::sensors::ChannelLayout;
 use proptest::prelude::*;
 
 fn bundled() -> Vec<(PathBuf, String)> {
-    let dir = common::repo("assets/scenarios");
-    let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|e| e == "toml"))
-        .collect();
-    files.sort();
-    files
+    common::toml_files("assets/scenarios")
         .into_iter()
         .map(|p| {
             let t = std::fs::read_to_string(&p).unwrap();

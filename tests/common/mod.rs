@@ -198,14 +198,31 @@ pub fn min_between(
         .fold(f64::INFINITY, f64::min)
 }
 
-/// Runs the `aift` binary in `dir` (calibration cache off).
-pub fn aift_in(args: &[&str], dir: &std::path::Path) -> std::process::Output {
-    std::process::Command::new(env!("CARGO_BIN_EXE_aift"))
+/// The `aift` binary with `args`, to run in `dir` (calibration cache off), for callers that set
+/// its streams or environment further.
+pub fn aift_command(args: &[&str], dir: &std::path::Path) -> std::process::Command {
+    let mut command = std::process::Command::new(env!("CARGO_BIN_EXE_aift"));
+    command
         .args(args)
         .current_dir(dir)
-        .env("AIFT_CACHE_DIR", "off")
-        .output()
+        .env("AIFT_CACHE_DIR", "off");
+    command
+}
+
+/// Runs the `aift` binary in `dir` (calibration cache off).
+pub fn aift_in(args: &[&str], dir: &std::path::Path) -> std::process::Output {
+    aift_command(args, dir).output().unwrap()
+}
+
+/// The `*.toml` files of a folder of the repository, sorted.
+pub fn toml_files(folder: &str) -> Vec<PathBuf> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(repo(folder))
         .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "toml"))
+        .collect();
+    files.sort();
+    files
 }
 
 /// Runs the `aift` binary in `dir` (calibration cache off) and asserts it succeeded.
