@@ -186,16 +186,11 @@ impl Page<'_> {
             if v.get("const").is_some() {
                 continue; // a variant's tag, listed with the variant
             }
+            // `a.b.key`, and `a[].key` inside an array of tables.
             let key_path = if path.is_empty() {
                 key.clone()
             } else {
-                format!("{}.{key}", path.trim_end_matches("[]"))
-            };
-            let key_path = if path.ends_with("[]") {
-                // keys inside an array of tables are written relative to the element
-                format!("{}[].{key}", path.trim_end_matches("[]"))
-            } else {
-                key_path
+                format!("{path}.{key}")
             };
             let ty = self.type_of(v, &key_path, later);
             let default = if required.contains(key.as_str()) {

@@ -380,6 +380,7 @@ impl TrajectoryRecorder {
         };
         let mut total = 0u64;
         let mut number = 1u64;
+        let mut row = Vec::with_capacity(out.header.len());
         loop {
             number += 1;
             if read(&mut reader, &mut line, number)? == 0 {
@@ -390,7 +391,7 @@ impl TrajectoryRecorder {
                 continue;
             }
             // Every row is checked, kept or not: a damaged late row is an error, not a gap.
-            let mut row = Vec::with_capacity(out.header.len());
+            row.clear();
             for (c, v) in text.split(',').enumerate() {
                 let x = v.parse::<f64>().map_err(|_| {
                     let column = out
@@ -412,7 +413,7 @@ impl TrajectoryRecorder {
                 ));
             }
             if total.is_multiple_of(out.every) {
-                out.push_decimated(row);
+                out.push_decimated(row.clone());
             }
             total += 1;
         }

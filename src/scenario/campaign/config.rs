@@ -68,6 +68,9 @@ pub enum Onset {
 }
 
 impl Onset {
+    /// Every onset, in the order of the file's documentation.
+    pub const ALL: [Onset; 3] = [Onset::Moving, Onset::Rest, Onset::RestThenMotion];
+
     pub fn name(self) -> &'static str {
         match self {
             Self::Moving => "moving",

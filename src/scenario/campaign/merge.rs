@@ -60,11 +60,8 @@ pub fn check_records(r: &CampaignRecords) -> Result<(), String> {
                 "a run of job {j}: the config's cells have jobs 0..{cell_jobs}"
             ));
         }
-        let (cell, method, seed) = (
-            j / per_cell,
-            methods[(j / seeds) % methods.len()],
-            1 + (j % seeds) as u64,
-        );
+        let (cell, method, seed_index) = plan.job(j).expect("j < cell_jobs");
+        let seed = super::run::run_seed(seed_index);
         if (run.cell, run.method, run.seed) != (cell, method, seed) {
             return Err(format!(
                 "the run of job {j} says cell {}, {}, seed {}; the job is cell {cell}, {method}, \

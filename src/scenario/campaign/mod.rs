@@ -137,6 +137,20 @@ impl Campaign {
     }
 
     /// Every job in canonical order: (cell, method, seed index).
+    /// Job `j`'s (cell, method, seed index): the inverse of [`Self::jobs`]'s order, for records
+    /// checked without expanding the job list; `None` past the cells' jobs.
+    pub fn job(&self, j: usize) -> Option<(usize, Method, usize)> {
+        let seeds = self.config.seeds;
+        let cell = j / (self.methods.len() * seeds).max(1);
+        (cell < self.cells.len()).then(|| {
+            (
+                cell,
+                self.methods[(j / seeds) % self.methods.len()],
+                j % seeds,
+            )
+        })
+    }
+
     pub fn jobs(&self) -> Vec<(usize, Method, usize)> {
         let mut jobs = Vec::new();
         for c in 0..self.cells.len() {
@@ -329,9 +343,9 @@ fn check_grid(config: &CampaignConfig, path: &Path, methods: usize) -> Result<()
         }
         // A pair's label must not be taken for another cell's: `healthy`, or `CHANNEL KIND
         // ONSET` as the grid's cells are labelled.
-        let onset_word = ["moving", "rest", "rest-then-motion"]
+        let onset_word = Onset::ALL
             .iter()
-            .any(|o| p.label.ends_with(&format!(" {o}")));
+            .any(|o| p.label.ends_with(&format!(" {}", o.name())));
         if p.label == "healthy" || p.label.trim().is_empty() || onset_word {
             return Err(bad(
                 &format!("pairs[{i}].label"),

@@ -63,6 +63,11 @@ pub struct CampaignRun {
     pub recover_time: Option<f64>,
 }
 
+/// The sensor-noise seed of a cell's `seed_index`-th run (the same in every cell and shard).
+pub fn run_seed(seed_index: usize) -> u64 {
+    1 + seed_index as u64
+}
+
 /// Tracks the belief error of the faulty joints and when it is back within 3 sigma of its level
 /// before the fault.
 struct RecoveryObserver {
@@ -158,7 +163,7 @@ fn run_job(
     let cell = &campaign.cells[cell_index];
     let sc = setup.scenario();
     let dt = sc.dt;
-    let seed = 1 + seed_index as u64;
+    let seed = run_seed(seed_index);
     let n = setup.layout.n_joints();
     let mut joints: Vec<usize> = setup
         .faults
