@@ -63,3 +63,27 @@ kind = "freeze"
 onsets = ["moving"]
 """
     return text
+
+
+@pytest.fixture
+def interrupted():
+    """Runs `call` with a SIGINT sent to this process after 0.5 s and expects KeyboardInterrupt.
+    Ctrl-C's handler is set here, as an interactive session has it: a process started in the
+    background by a non-interactive shell inherits SIGINT ignored, and Python then installs no
+    handler (the tests failed under `tools/test.sh &` without this)."""
+    import signal
+    import threading
+
+    def run(call):
+        previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+        timer = threading.Timer(0.5, lambda: os.kill(os.getpid(), signal.SIGINT))
+        timer.start()
+        try:
+            with pytest.raises(KeyboardInterrupt):
+                call()
+        finally:
+            timer.cancel()
+            signal.signal(signal.SIGINT, previous)
+
+    return run
+

@@ -3,7 +3,6 @@ string, stepping past the end or before reset, gymnasium's large seeds, a Sim us
 thread, Ctrl-C during a table or a calibration, and outputs that are FIFOs."""
 
 import os
-import signal
 import threading
 
 import numpy as np
@@ -81,30 +80,7 @@ def test_the_gym_env_needs_reset_and_takes_any_gymnasium_seed():
         env.step(zero)
 
 
-def interrupted(call):
-    """Runs `call` with a SIGINT sent to this process after 0.5 s; returns the seconds from the
-    signal to the KeyboardInterrupt."""
-    import time
-
-    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
-    sent = {}
-
-    def fire():
-        sent["at"] = time.monotonic()
-        os.kill(os.getpid(), signal.SIGINT)
-
-    timer = threading.Timer(0.5, fire)
-    timer.start()
-    try:
-        with pytest.raises(KeyboardInterrupt):
-            call()
-        return time.monotonic() - sent["at"]
-    finally:
-        timer.cancel()
-        signal.signal(signal.SIGINT, previous)
-
-
-def test_ctrl_c_stops_tables_campaigns_and_calibrations(tmp_path, repo):
+def test_ctrl_c_stops_tables_campaigns_and_calibrations(tmp_path, tiny_campaign, interrupted):
     long = aift.Scenario.default(["duration=300.0", "plant.engine=\"articulated\"", "faults=[]"])
     aift.run(long.copy().set("duration", 0.1), method="no-ft")  # the GP trained
     interrupted(lambda: aift.table(long, methods=["no-ft", "oracle"], seeds=4, out=tmp_path / "t"))
@@ -112,19 +88,8 @@ def test_ctrl_c_stops_tables_campaigns_and_calibrations(tmp_path, repo):
     interrupted(lambda: aift.calibrate(long, tmp_path / "cal.json", runs=20))
     assert not (tmp_path / "cal.json").exists()
     campaign = tmp_path / "c.toml"
-    campaign.write_text(f"""
-name = "interrupted"
-seeds = 4
-methods = ["no-ft"]
-defaults = {{ duration = 300.0, plant = {{ engine = "articulated" }} }}
-channels = ["enc*"]
-[[arms]]
-name = "paper"
-scenario = "{repo / 'assets' / 'scenarios' / 'paper_healthy.toml'}"
-[[kinds]]
-kind = "freeze"
-onsets = ["moving"]
-""")
+    campaign.write_text(tiny_campaign("interrupted", methods=("no-ft",))
+                        .replace("seeds = 1", "seeds = 4").replace("duration = 9.0", "duration = 300.0"))
     interrupted(lambda: aift.campaign(campaign, out=tmp_path / "c"))
     assert not (tmp_path / "c").exists()
     # Runs go on normally afterwards.

@@ -250,24 +250,10 @@ def test_shards_merge_to_the_whole_campaign_and_report(tmp_path, tiny_campaign):
         aift.report(tmp_path)
 
 
-def test_an_interrupted_run_leaves_no_folder(tmp_path):
-    import os
-    import signal
-
-    # A process started in the background by a non-interactive shell inherits SIGINT ignored,
-    # and Python then installs no handler: Ctrl-C's handler is set here, as an interactive
-    # session has it (without this, the test failed under `tools/test.sh &`).
-    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+def test_an_interrupted_run_leaves_no_folder(tmp_path, interrupted):
     sc = aift.Scenario.default(["duration=300.0", "plant.engine=\"articulated\""])
     aift.run(sc.copy().set("duration", 0.1), method="no-ft")  # the GP trained, the cache warm
-    timer = threading.Timer(0.5, lambda: os.kill(os.getpid(), signal.SIGINT))
-    timer.start()
-    try:
-        with pytest.raises(KeyboardInterrupt):
-            aift.run(sc, method="no-ft", out=tmp_path / "run", trajectory=False)
-    finally:
-        timer.cancel()
-        signal.signal(signal.SIGINT, previous)
+    interrupted(lambda: aift.run(sc, method="no-ft", out=tmp_path / "run", trajectory=False))
     assert not (tmp_path / "run").exists()
     assert [p.name for p in tmp_path.iterdir()] == []
 
