@@ -185,11 +185,7 @@ pub fn merge(shards: &[CampaignRecords]) -> Result<CampaignRecords, String> {
         .flat_map(|s| s.reaching.iter().cloned())
         .collect();
     // As an unsharded run lists them: by job, then in the campaign's order of methods.
-    let methods = first
-        .config
-        .methods
-        .clone()
-        .unwrap_or_else(|| crate::scenario::Method::ALL.to_vec());
+    let methods = first.config.method_list();
     let rank = |m: &crate::scenario::Method| methods.iter().position(|x| x == m);
     reaching.sort_by(|a, b| {
         a.job

@@ -107,10 +107,7 @@ impl Campaign {
     /// configuration, no arm prepared.
     pub fn plan(config: CampaignConfig) -> Self {
         let cells = expand(&config, &config.onsets);
-        let methods = config
-            .methods
-            .clone()
-            .unwrap_or_else(|| Method::ALL.to_vec());
+        let methods = config.method_list();
         Self {
             config,
             path: PathBuf::new(),
@@ -165,6 +162,11 @@ impl Campaign {
 }
 
 impl CampaignConfig {
+    /// The methods it runs, in its order: `methods`, or every method when absent.
+    pub fn method_list(&self) -> Vec<Method> {
+        self.methods.clone().unwrap_or_else(|| Method::ALL.to_vec())
+    }
+
     /// Checks the campaign file's own fields and its grid's size, without loading any arm;
     /// returns the methods it runs. (`Campaign::load` does this first.)
     pub fn check(&self, path: &Path) -> Result<Vec<Method>, ScenarioError> {
@@ -222,7 +224,7 @@ fn validate(config: &CampaignConfig, path: &Path) -> Result<Vec<Method>, Scenari
             }
             m.clone()
         }
-        None => Method::ALL.to_vec(),
+        None => config.method_list(),
     };
     check_grid(config, path, methods.len())?;
     if let Some(r) = &config.reaching
