@@ -93,3 +93,69 @@ fn init_holds_generated_arms_it_never_saw() {
     }
     assert!(misses.is_empty(), "{misses:#?}");
 }
+
+/// The evaluation campaign (assets/campaigns/eval.toml, written by tools/make-eval-campaign.py)
+/// is what it says: at least 20 arms, each the URDF `gen-arm` writes today for its seed (so a
+/// generator change cannot leave it describing other arms), generator seeds apart from every
+/// test's (below 100 000) and screen's (below 800 000), a listed joint the arm has, run seeds
+/// apart from the development campaign's, every fault kind, and a campaign that validates
+/// (without preparing its arms: that trains 20 camera models).
+#[test]
+fn the_evaluation_campaign_is_generated_arms_apart_from_development() {
+    use aift::scenario::campaign::CampaignConfig;
+    let path = common::repo("assets/campaigns/eval.toml");
+    let config = CampaignConfig::load(&path).unwrap();
+    let dev = CampaignConfig::load(&common::repo("assets/campaigns/default.toml")).unwrap();
+    assert!(config.arms.len() >= 20, "{} arms", config.arms.len());
+    let dev_seeds = dev.first_seed..dev.first_seed + dev.seeds as u64;
+    let eval_seeds = config.first_seed..config.first_seed + config.seeds as u64;
+    assert!(
+        eval_seeds.start >= dev_seeds.end || eval_seeds.end <= dev_seeds.start,
+        "run seeds {eval_seeds:?} overlap the development campaign's {dev_seeds:?}"
+    );
+    assert!(config.seeds >= 5);
+    let kinds: std::collections::BTreeSet<String> = config
+        .kinds
+        .iter()
+        .map(|k| {
+            format!("{k:?}")
+                .split([' ', '{'])
+                .next()
+                .unwrap()
+                .to_string()
+        })
+        .collect();
+    assert_eq!(kinds.len(), 8, "{kinds:?}");
+    let tmp = tempfile::tempdir().unwrap();
+    for arm in &config.arms {
+        let seed: u64 = arm.name.strip_prefix("arm").unwrap().parse().unwrap();
+        assert!(
+            seed >= 800_000,
+            "{}: a seed tests or screens may use",
+            arm.name
+        );
+        let scenario = path.parent().unwrap().join(&arm.scenario);
+        let urdf = scenario.with_extension("urdf");
+        let o = aift(&["gen-arm", "--seed", &seed.to_string()], tmp.path());
+        assert_eq!(o.status.code(), Some(0));
+        assert_eq!(
+            o.stdout,
+            std::fs::read(&urdf).unwrap(),
+            "{}: not what `gen-arm --seed {seed}` writes today (rerun tools/make-eval-campaign.py)",
+            urdf.display()
+        );
+        let model = aift::arm::load_urdf(&urdf).unwrap();
+        assert!(
+            arm.joints
+                .iter()
+                .all(|&j| j >= 1 && j <= model.joints.len())
+        );
+        let loaded = aift::scenario::LoadedScenario::from_file(&scenario, &[]).unwrap();
+        assert!(
+            loaded.scenario.faults.is_empty(),
+            "{}: a healthy template",
+            arm.name
+        );
+    }
+    config.check(&path).unwrap();
+}

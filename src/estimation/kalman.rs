@@ -834,13 +834,22 @@ mod tests {
                 .acceleration
                 .is_none()
         );
-        let mut prediction =
-            transition_model(ProcessModel::Dynamics, model.clone(), g, 1e-3, &noise, 200.0);
+        let mut prediction = transition_model(
+            ProcessModel::Dynamics,
+            model.clone(),
+            g,
+            1e-3,
+            &noise,
+            200.0,
+        );
         let expected = crate::estimation::models::implicit_acceleration(&model, g, &x, &u, 1e-3);
         let t = prediction.evaluate(&x, &u);
         let got = t.acceleration.unwrap().to_vec();
         for (a, b) in got.iter().zip(&expected) {
-            assert!((a - b).abs() < 1e-9 * (1.0 + b.abs()), "{got:?} against {expected:?}");
+            assert!(
+                (a - b).abs() < 1e-9 * (1.0 + b.abs()),
+                "{got:?} against {expected:?}"
+            );
         }
         for (s, a) in t.noise.iter().zip(&got) {
             assert_eq!(*s, f64::max(2.0, 0.1 * a.abs()));

@@ -16,10 +16,10 @@
 
 use std::sync::Arc;
 
-use crate::arm::model_error::{ModelUncertainty, length_scale};
 use crate::arm::ArmModel;
-use crate::plant::{ArticulatedPlant, ArticulatedSettings, Integrator, Plant};
+use crate::arm::model_error::{ModelUncertainty, length_scale};
 use crate::gp::GpModel;
+use crate::plant::{ArticulatedPlant, ArticulatedSettings, Integrator, Plant};
 use crate::sensors::ChannelLayout;
 
 /// One tick's transition at a state, as a model evaluated it: each joint's acceleration (None:
@@ -308,7 +308,12 @@ pub(crate) fn implicit_acceleration(
         m[(i, i)] += dt * joint.damping;
         rhs[i] = u[i] - d.bias()[i] - joint.damping * x[n + i];
     }
-    m.lu().solve(&rhs).expect("regular").iter().copied().collect()
+    m.lu()
+        .solve(&rhs)
+        .expect("regular")
+        .iter()
+        .copied()
+        .collect()
 }
 
 #[cfg(test)]
@@ -362,7 +367,8 @@ mod tests {
             <inertia ixx="1e-4" ixy="0" ixz="0" iyy="1e-4" iyz="0" izz="1e-4"/></inertial></link>
             <joint name="j1" type="continuous"><parent link="base"/><child link="l1"/>
             <axis xyz="0 0 1"/><dynamics damping="30" friction="0"/></joint></robot>"#;
-        let model = Arc::new(crate::arm::parse_urdf(text, std::path::Path::new("light.urdf")).unwrap());
+        let model =
+            Arc::new(crate::arm::parse_urdf(text, std::path::Path::new("light.urdf")).unwrap());
         let dt = 1e-3;
         let mut t = ArmTransition::new(model, [0.0, 0.0, -9.81], dt, 2.0, 0.1, 200.0);
         let v = 2.0;
@@ -381,9 +387,13 @@ mod tests {
             <inertia ixx="1e-4" ixy="0" ixz="0" iyy="1e-4" iyz="0" izz="1e-4"/></inertial></link>
             <joint name="j1" type="continuous"><parent link="base"/><child link="l1"/>
             <axis xyz="0 0 1"/><dynamics damping="0" friction="0.5"/></joint></robot>"#;
-        let model = Arc::new(crate::arm::parse_urdf(text, std::path::Path::new("sticky.urdf")).unwrap());
+        let model =
+            Arc::new(crate::arm::parse_urdf(text, std::path::Path::new("sticky.urdf")).unwrap());
         let mut t = ArmTransition::new(model, [0.0, 0.0, -9.81], 1e-3, 2.0, 0.1, 200.0);
-        assert_eq!(t.evaluate(&[0.0, 0.0], &[0.3]).acceleration.unwrap()[0], 0.0);
+        assert_eq!(
+            t.evaluate(&[0.0, 0.0], &[0.3]).acceleration.unwrap()[0],
+            0.0
+        );
         // Above the bound it moves, at (u - F) / I.
         let a = t.evaluate(&[0.0, 0.0], &[0.7]).acceleration.unwrap()[0];
         assert!((a - 0.2 / 1e-4).abs() < 1e-6 * 2000.0, "{a}");
@@ -425,7 +435,10 @@ mod tests {
             let mut var = 0.0;
             for (j, joint) in model.joints.iter().enumerate() {
                 let sum = tau[j] - d.bias()[j] - joint.damping * x[3 + j];
-                let entries = (0..3).map(|k| (m[(j, k)] * acc[k]).powi(2)).sum::<f64>().sqrt();
+                let entries = (0..3)
+                    .map(|k| (m[(j, k)] * acc[k]).powi(2))
+                    .sum::<f64>()
+                    .sqrt();
                 let inertial = sum.abs().max(entries);
                 let s2 = (u.mass.max(u.inertia) * inertial).powi(2)
                     + (u.mass * d.bias()[j]).powi(2)

@@ -209,12 +209,21 @@ fn markdown(
     methods: &[MethodSummary],
 ) -> String {
     let c = &campaign.config;
+    // Run seeds other than 1, 2, ... (an evaluation campaign's) are named.
+    let seeds = if c.first_seed == 1 {
+        format!("{} seeds", c.seeds)
+    } else {
+        format!(
+            "{} seeds from {}",
+            c.seeds,
+            crate::scenario::campaign::run_seed(c, 0)
+        )
+    };
     let mut out = format!(
-        "# Campaign {} ({} cells x {} methods x {} seeds; fingerprint {})\n\n",
+        "# Campaign {} ({} cells x {} methods x {seeds}; fingerprint {})\n\n",
         c.name,
         campaign.cells.len(),
         campaign.methods.len(),
-        c.seeds,
         records.fingerprint
     );
     let _ = writeln!(

@@ -257,6 +257,10 @@ pub struct CampaignConfig {
     pub description: String,
     #[serde(default = "default_seeds")]
     pub seeds: usize,
+    /// The sensor-noise seed of every cell's first run; the k-th run uses `first_seed + k`
+    /// (an evaluation campaign's seeds kept apart from the development campaign's 1, 2, ...).
+    #[serde(default = "one", skip_serializing_if = "is_one")]
+    pub first_seed: u64,
     /// Methods (default: every method).
     #[serde(default)]
     pub methods: Option<Vec<Method>>,
@@ -312,6 +316,14 @@ impl CampaignConfig {
             })
         })
     }
+}
+
+fn one() -> u64 {
+    1
+}
+
+fn is_one(v: &u64) -> bool {
+    *v == 1
 }
 
 fn default_channels() -> Vec<String> {

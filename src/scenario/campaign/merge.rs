@@ -61,7 +61,7 @@ pub fn check_records(r: &CampaignRecords) -> Result<(), String> {
             ));
         }
         let (cell, method, seed_index) = plan.job(j).expect("j < cell_jobs");
-        let seed = super::run::run_seed(seed_index);
+        let seed = super::run::run_seed(&r.config, seed_index);
         if (run.cell, run.method, run.seed) != (cell, method, seed) {
             return Err(format!(
                 "the run of job {j} says cell {}, {}, seed {}; the job is cell {cell}, {method}, \

@@ -34,7 +34,7 @@ pub use config::{
 pub use grid::{Cell, expand};
 pub use merge::{check_records, merge};
 pub use reaching::{ReachingRun, ReachingTask};
-pub use run::{CampaignRecords, CampaignRun, Shard, Verdict, run_campaign};
+pub use run::{CampaignRecords, CampaignRun, Shard, Verdict, run_campaign, run_seed};
 pub use summary::{CellSummary, MethodSummary, summarise, worse_than_no_ft};
 
 /// Most cells a campaign may expand to, and most jobs (cells x methods x seeds, and reaching
@@ -191,6 +191,9 @@ fn validate(config: &CampaignConfig, path: &Path) -> Result<Vec<Method>, Scenari
     }
     if !(1..=MAX_SEEDS).contains(&config.seeds) {
         return Err(bad("seeds", format!("must be in 1..={MAX_SEEDS}")));
+    }
+    if config.first_seed == 0 || config.first_seed > u64::MAX / 2 {
+        return Err(bad("first_seed", "must be in 1..=2^63".into()));
     }
     if config.arms.is_empty() {
         return Err(bad("arms", "at least one arm is needed".into()));

@@ -63,9 +63,10 @@ pub struct CampaignRun {
     pub recover_time: Option<f64>,
 }
 
-/// The sensor-noise seed of a cell's `seed_index`-th run (the same in every cell and shard).
-pub fn run_seed(seed_index: usize) -> u64 {
-    1 + seed_index as u64
+/// The sensor-noise seed of a cell's `seed_index`-th run (the same in every cell and shard):
+/// the campaign's `first_seed` + `seed_index` (checked not to overflow when the campaign is).
+pub fn run_seed(config: &super::CampaignConfig, seed_index: usize) -> u64 {
+    config.first_seed + seed_index as u64
 }
 
 /// Tracks the belief error of the faulty joints and when it is back within 3 sigma of its level
@@ -163,7 +164,7 @@ fn run_job(
     let cell = &campaign.cells[cell_index];
     let sc = setup.scenario();
     let dt = sc.dt;
-    let seed = run_seed(seed_index);
+    let seed = run_seed(&campaign.config, seed_index);
     let n = setup.layout.n_joints();
     let mut joints: Vec<usize> = setup
         .faults
