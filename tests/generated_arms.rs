@@ -159,3 +159,102 @@ fn the_evaluation_campaign_is_generated_arms_apart_from_development() {
     }
     config.check(&path).unwrap();
 }
+
+/// The property the issue on arms users bring asks for, on 20 generated arms no tuning and no
+/// screen saw (generator seeds 70001 on; seeds `init` refuses are counted and skipped, at most
+/// 4): each arm's `init` scenario, healthy, under every method on the articulated engine with
+/// the erred model (15 s, one seed): every run completes (no divergence, no chattering) and
+/// every joint ends within 0.01 rad of its target; neither the hybrid nor the oracle raises an
+/// alarm. An encoder freeze on a random joint of each arm (at 8 s, while it moves): the hybrid
+/// recovers (within the campaign's 0.02 rad) wherever the oracle does. What it does not assert
+/// yet, with the numbers it prints: the other methods' false alarms and the oracle's own
+/// misses (docs/arms.md, "Generated arms").
+#[test]
+fn every_method_holds_on_twenty_generated_arms_nobody_tuned_for() {
+    use aift::scenario::Method;
+    use aift::scenario::campaign::{Campaign, Shard, Verdict, run_campaign};
+    let tmp = tempfile::tempdir().unwrap();
+    let mut arms = String::new();
+    let mut refused = Vec::new();
+    let mut draw = 0x9e37_79b9_7f4a_7c15u64;
+    let mut seed = 70_001u64;
+    let mut count = 0;
+    while count < 20 {
+        assert!(seed < 70_025, "init refused {refused:?}");
+        let name = format!("arm{seed}");
+        let urdf = tmp.path().join(format!("{name}.urdf"));
+        let scenario = tmp.path().join(format!("{name}.toml"));
+        common::aift_ok(
+            &["gen-arm", "--seed", &seed.to_string(), "--out", urdf.to_str().unwrap()],
+            tmp.path(),
+        );
+        let init = aift(
+            &["init", "--urdf", urdf.to_str().unwrap(), "--out", scenario.to_str().unwrap()],
+            tmp.path(),
+        );
+        if init.status.code() == Some(0) {
+            let n = aift::arm::load_urdf(&urdf).unwrap().joints.len() as u64;
+            // xorshift: a random joint per arm, the same in every run of the test.
+            draw ^= draw << 13;
+            draw ^= draw >> 7;
+            draw ^= draw << 17;
+            let joint = 1 + draw % n;
+            arms += &format!(
+                "\n[[arms]]\nname = \"{name}\"\nscenario = \"{name}.toml\"\njoints = [{joint}]\n"
+            );
+            count += 1;
+        } else {
+            assert_eq!(init.status.code(), Some(2), "{}", String::from_utf8_lossy(&init.stderr));
+            refused.push(seed);
+        }
+        seed += 1;
+    }
+    assert!(refused.len() <= 4, "init refused {refused:?}");
+    let file = tmp.path().join("property.toml");
+    std::fs::write(
+        &file,
+        format!(
+            "name = \"property\"\nseeds = 1\nchannels = [\"enc*\"]\n\
+             [defaults]\nduration = 15.0\nplant = {{ engine = \"articulated\" }}\n\
+             [[kinds]]\nkind = \"freeze\"\nonsets = [\"moving\"]\n{arms}"
+        ),
+    )
+    .unwrap();
+    let campaign = Campaign::load(&file, &[]).unwrap();
+    let records = run_campaign(&campaign, Shard::WHOLE, None, &|_, _| {}).unwrap();
+    let mut misses = Vec::new();
+    let mut alarms = std::collections::BTreeMap::<Method, usize>::new();
+    let mut oracle_misses = Vec::new();
+    for run in &records.runs {
+        let cell = &campaign.cells[run.cell];
+        let arm = &campaign.config.arms[cell.arm].name;
+        if cell.is_healthy() {
+            *alarms.entry(run.method).or_default() += run.false_alarms;
+            if run.outcome != "completed" || run.max_final_error > 0.01 {
+                misses.push(format!(
+                    "{arm} healthy {}: {} {:.4} rad",
+                    run.method, run.outcome, run.max_final_error
+                ));
+            }
+            if matches!(run.method, Method::Hybrid | Method::Oracle) && run.false_alarms > 0 {
+                misses.push(format!("{arm} healthy {}: {} alarms", run.method, run.false_alarms));
+            }
+        } else if run.method == Method::Oracle && run.verdict != Verdict::Recovered {
+            oracle_misses.push(format!("{arm} {}", cell.label));
+        }
+    }
+    for run in &records.runs {
+        let cell = &campaign.cells[run.cell];
+        if cell.is_healthy() || run.method != Method::Hybrid || run.verdict == Verdict::Recovered
+        {
+            continue;
+        }
+        let arm = &campaign.config.arms[cell.arm].name;
+        if !oracle_misses.contains(&format!("{arm} {}", cell.label)) {
+            misses.push(format!("{arm} {}: the hybrid {:?}, the oracle recovered", cell.label, run.verdict));
+        }
+    }
+    eprintln!("false alarms on the 20 healthy runs, per method: {alarms:?}");
+    eprintln!("encoder freezes the oracle does not recover: {oracle_misses:?}; init refused {refused:?}");
+    assert!(misses.is_empty(), "{misses:#?}");
+}
