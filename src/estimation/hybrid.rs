@@ -129,11 +129,7 @@ pub struct HybridConfig {
     pub bank_model: BankModel,
     /// Per-tick probability of leaving a hypothesis.
     pub switch: f64,
-    /// A failed encoder's or tachometer's noise standard deviation, as a multiple of the larger
-    /// of its nominal noise and the spread the hypothesis' own prediction gives its reading
-    /// (sqrt(H P H')): a failed sensor reads anything within a range much wider than what the
-    /// model predicts, so a loose prediction (a light, fast arm) does not make "failed" as
-    /// likely as "healthy".
+    /// A failed channel's noise standard deviation, as a multiple of its nominal.
     pub broad: f64,
     /// The bank's camera noise as a multiple of the camera's (room for the GP's own error).
     pub camera_inflation: f64,
@@ -646,12 +642,7 @@ impl Hybrid {
                 _ => {
                     let v = 1.0 / self.nominal[c];
                     if self.holds_failed(j, c) {
-                        // Broad against what this hypothesis predicts the channel reads, not
-                        // only against the sensor's noise: where the model is loose (a light,
-                        // fast arm) a reading the prediction cannot check would otherwise be
-                        // as likely failed as healthy (docs/method.md, "The hybrid").
-                        let spread = v.max(self.bank.filters[j].projected_variance(c));
-                        spread * self.config.broad * self.config.broad
+                        v * self.config.broad * self.config.broad
                     } else {
                         v
                     }

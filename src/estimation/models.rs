@@ -77,7 +77,6 @@ pub struct ArmTransition {
     /// The estimator's model as the articulated engine steps it (one substep per tick).
     stepper: ArticulatedPlant,
     dt: f64,
-    /// Scratch: the state one step on.
     stepped: Vec<f64>,
     floor: f64,
     relative: f64,
