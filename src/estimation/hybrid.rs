@@ -784,7 +784,6 @@ pub fn bank_transition(
     config: &HybridConfig,
     model: Arc<crate::arm::ArmModel>,
     gravity: [f64; 3],
-    dt: f64,
     noise: &crate::arm::ModelConfig,
     acceleration_bound: f64,
 ) -> Box<dyn TransitionModel> {
@@ -795,7 +794,6 @@ pub fn bank_transition(
             ArmTransition::new(
                 model,
                 gravity,
-                dt,
                 noise.acceleration_noise,
                 noise.relative_error,
                 noise.acceleration_noise,

@@ -290,7 +290,6 @@ mod tests {
             ProcessModel::Dynamics,
             model.clone(),
             g,
-            dt,
             &noise,
             200.0,
         );
@@ -303,14 +302,16 @@ mod tests {
             f.p.fill_with_identity();
         }
         imm.predict_bank(&u);
-        let acc = crate::estimation::models::implicit_acceleration(&model, g, &x, &u, dt);
+        let mut direct = crate::arm::Dynamics::new(model, g);
+        let mut acc = vec![0.0; 2];
+        assert!(direct.forward_dynamics(&x[..2], &x[2..], &u, &mut acc));
         let (k, scale) = imm.manoeuvre.expect("a manoeuvre hypothesis by default");
         assert_eq!(k, imm.bank.len() - 1);
         for (j, f) in imm.bank.filters.iter().enumerate() {
             for i in 0..2 {
                 let v = x[2 + i] + dt * acc[i];
                 assert!(
-                    (f.x[2 + i] - v).abs() < 1e-12,
+                    (f.x[2 + i] - v).abs() < 1e-15,
                     "hypothesis {j}: {} {v}",
                     f.x[2 + i]
                 );

@@ -163,7 +163,6 @@ pub fn transition_model(
     process: ProcessModel,
     model: Arc<ArmModel>,
     gravity: [f64; 3],
-    dt: f64,
     noise: &crate::arm::ModelConfig,
     acceleration_noise: f64,
 ) -> Box<dyn TransitionModel> {
@@ -174,7 +173,6 @@ pub fn transition_model(
             ArmTransition::new(
                 model,
                 gravity,
-                dt,
                 noise.acceleration_noise,
                 noise.relative_error,
                 acceleration_noise,
@@ -829,32 +827,21 @@ mod tests {
         let x = [q[0], q[1], qd[0], qd[1]];
         let cv = ProcessModel::ConstantVelocity;
         assert!(
-            transition_model(cv, model.clone(), g, 1e-3, &noise, 200.0)
+            transition_model(cv, model.clone(), g, &noise, 200.0)
                 .evaluate(&x, &u)
                 .acceleration
                 .is_none()
         );
-        let mut prediction = transition_model(
-            ProcessModel::Dynamics,
-            model.clone(),
-            g,
-            1e-3,
-            &noise,
-            200.0,
-        );
-        let expected = crate::estimation::models::implicit_acceleration(&model, g, &x, &u, 1e-3);
+        let mut prediction =
+            transition_model(ProcessModel::Dynamics, model.clone(), g, &noise, 200.0);
+        let mut direct = crate::arm::Dynamics::new(model, g);
+        let mut expected = vec![0.0; 2];
+        assert!(direct.forward_dynamics(&q, &qd, &u, &mut expected));
         let t = prediction.evaluate(&x, &u);
-        let got = t.acceleration.unwrap().to_vec();
-        for (a, b) in got.iter().zip(&expected) {
-            assert!(
-                (a - b).abs() < 1e-9 * (1.0 + b.abs()),
-                "{got:?} against {expected:?}"
-            );
-        }
-        for (s, a) in t.noise.iter().zip(&got) {
+        assert_eq!(t.acceleration.unwrap(), expected.as_slice());
+        for (s, a) in t.noise.iter().zip(&expected) {
             assert_eq!(*s, f64::max(2.0, 0.1 * a.abs()));
         }
-        let expected = got;
         assert!(expected.iter().any(|a| 0.1 * a.abs() > 2.0), "{expected:?}");
         let layout = ChannelLayout::new(2, CameraModel::Pinhole);
         let mut ekf = Ekf::new(toy_observation(layout), 1e-3);

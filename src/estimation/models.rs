@@ -16,10 +16,9 @@
 
 use std::sync::Arc;
 
-use crate::arm::ArmModel;
 use crate::arm::model_error::{ModelUncertainty, length_scale};
+use crate::arm::{ArmModel, Dynamics};
 use crate::gp::GpModel;
-use crate::plant::{ArticulatedPlant, ArticulatedSettings, Integrator, Plant};
 use crate::sensors::ChannelLayout;
 
 /// One tick's transition at a state, as a model evaluated it: each joint's acceleration (None:
@@ -62,22 +61,14 @@ impl TransitionModel for ConstantVelocity {
     }
 }
 
-/// The arm's dynamics as a transition: the estimator's arm model stepped over one tick under the
-/// applied torques by the articulated engine's own map (semi-implicit Euler with the joints'
-/// damping implicit, Coulomb friction and joint limits as bounded impulses; one substep of the
-/// tick), qdd = (qd' - qd) / dt, with each joint's process noise max(`floor`, `relative` x
-/// |qdd|) (docs/method.md, "Classical baselines"): a hard acceleration the model gets slightly
-/// wrong is noise, not a failed sensor. The model steps the arm as the plant does, so it holds
-/// where the continuous-time acceleration M^-1 (u - C qd - G - D qd - F) taken over a whole tick
-/// does not: a light link with heavy damping (D dt / M far above 1) or a joint held by its
-/// friction. Where the model's mass matrix is singular, constant velocity with the fallback
-/// noise.
+/// The arm's dynamics as a transition: qdd = M^-1 (u - C qd - G - D qd - F) of the estimator's
+/// arm model under the applied torques, with each joint's process noise
+/// max(`floor`, `relative` x |qdd|) (docs/method.md, "Classical baselines"): a hard acceleration
+/// the model gets slightly wrong is noise, not a failed sensor. Where the model's mass matrix is
+/// singular, constant velocity with the fallback noise.
 #[derive(Clone, Debug)]
 pub struct ArmTransition {
-    /// The estimator's model as the articulated engine steps it (one substep per tick).
-    stepper: ArticulatedPlant,
-    dt: f64,
-    stepped: Vec<f64>,
+    dynamics: Dynamics,
     floor: f64,
     relative: f64,
     acceleration: Vec<f64>,
@@ -95,30 +86,18 @@ pub struct ArmTransition {
 }
 
 impl ArmTransition {
-    /// The dynamics of `model` (the estimator's copy) under `gravity` over ticks of `dt`,
-    /// process noise max(`floor`, `relative` |qdd|), constant velocity with `fallback` noise
-    /// where singular.
-    ///
-    /// # Panics
-    /// If `gravity` is not finite (a scenario's is checked when it loads).
+    /// The dynamics of `model` (the estimator's copy) under `gravity`, process noise
+    /// max(`floor`, `relative` |qdd|), constant velocity with `fallback` noise where singular.
     pub fn new(
         model: Arc<ArmModel>,
         gravity: [f64; 3],
-        dt: f64,
         floor: f64,
         relative: f64,
         fallback: f64,
     ) -> Self {
         let n = model.joints.len();
-        let settings = ArticulatedSettings {
-            substeps: 1,
-            integrator: Integrator::Euler,
-        };
         Self {
-            stepper: ArticulatedPlant::new(model, gravity, &settings)
-                .expect("a finite gravity and one Euler substep"),
-            dt,
-            stepped: vec![0.0; 2 * n],
+            dynamics: Dynamics::new(model, gravity),
             floor,
             relative,
             acceleration: vec![0.0; n],
@@ -133,14 +112,13 @@ impl ArmTransition {
     }
 
     /// The same transition with the model's assumed parameter errors in its process noise: each
-    /// joint's torque error sigma_tau_j = sqrt((max(mass, inertia) I_j)^2 + (mass bias_j)^2 +
-    /// (com torque_j)^2 + (damping D_j qd_j)^2 + (friction F_j)^2), I_j the larger of |(M
-    /// qdd)_j| and sqrt(sum_k (M_jk qdd_k)^2), carried to the accelerations through the step's
-    /// (M + dt D)^-1, sigma_i = sqrt(sum_j ((M + dt D)^-1_ij sigma_tau_j)^2); the noise is the
-    /// largest of the floor, the relative term and sigma_i (docs/method.md, "Model error").
+    /// joint's torque error sigma_tau_j = sqrt((max(mass, inertia) (M qdd)_j)^2 + (mass bias_j)^2 +
+    /// (com torque_j)^2 + (damping D_j qd_j)^2 + (friction F_j)^2), carried to the accelerations through M^-1,
+    /// sigma_i = sqrt(sum_j (M^-1_ij sigma_tau_j)^2); the noise is the largest of the floor, the
+    /// relative term and sigma_i (docs/method.md, "Model error").
     pub fn with_uncertainty(mut self, uncertainty: ModelUncertainty) -> Self {
-        let model = self.stepper.dynamics().model().clone();
-        let g = self.stepper.dynamics().gravity().norm();
+        let model = self.dynamics.model().clone();
+        let g = self.dynamics.gravity().norm();
         let mut sums = vec![0.0; model.joints.len()];
         for (b, body) in model.bodies.iter().enumerate().skip(1) {
             let moment = uncertainty.com * body.mass * length_scale(&model, b) * g;
@@ -157,27 +135,16 @@ impl ArmTransition {
     }
 
     /// The per-joint acceleration error of the model's parameter errors at the state last
-    /// stepped, into `noise` as a lower bound: the torque errors carried through the step's
-    /// (M + dt D)^-1 (its change of velocity is dt (M + dt D)^-1 times a change of torque).
+    /// evaluated, into `noise` as a lower bound.
     fn parameter_noise(&mut self, qd: &[f64], torques: &[f64]) {
         let u = self.uncertainty;
-        let dynamics = self.stepper.dynamics();
-        let model = dynamics.model().clone();
-        let m = dynamics.mass_matrix();
+        let model = self.dynamics.model().clone();
         for (j, joint) in model.joints.iter().enumerate() {
-            // The inertial torque M qdd the model predicts is off by its mass error too, entry
-            // by entry: a row whose terms M_jk qdd_k cancel (a light link carried by a heavy
-            // one, its own torque near zero) has a small sum and large terms, and the errors of
-            // the entries (different bodies' masses and inertias) do not cancel as they do.
-            let sum = torques[j] - dynamics.bias()[j] - joint.damping * qd[j];
-            let terms = (0..m.ncols())
-                .map(|k| (m[(j, k)] * self.acceleration[k]).powi(2))
-                .sum::<f64>()
-                .sqrt();
-            let inertial = sum.abs().max(terms);
+            // The inertial torque M qdd the model predicts is off by its mass error too.
+            let inertial = torques[j] - self.dynamics.bias()[j] - joint.damping * qd[j];
             let terms = [
                 u.mass.max(u.inertia) * inertial,
-                u.mass * dynamics.bias()[j],
+                u.mass * self.dynamics.bias()[j],
                 self.com_torque[j],
                 u.damping * joint.damping * qd[j],
                 u.friction * joint.friction,
@@ -193,7 +160,7 @@ impl ArmTransition {
             }
             self.column.fill(0.0);
             self.column[j] = 1.0;
-            self.stepper.dynamics().solve_factored(&mut self.column);
+            self.dynamics.solve_factored(&mut self.column);
             for (v, m) in var.iter_mut().zip(&self.column) {
                 *v += m * m * self.torque_error[j];
             }
@@ -206,22 +173,18 @@ impl ArmTransition {
 
     /// The arm model it predicts with.
     pub fn model(&self) -> &Arc<ArmModel> {
-        self.stepper.dynamics().model()
+        self.dynamics.model()
     }
 }
 
 impl TransitionModel for ArmTransition {
     fn evaluate(&mut self, x: &[f64], torques: &[f64]) -> Transition<'_> {
         let n = self.noise.len();
-        self.stepper.set_state(&x[..n], &x[n..]);
-        self.stepper.set_torques(torques);
-        if !self.stepper.advance(self.dt) {
+        if !self
+            .dynamics
+            .forward_dynamics(&x[..n], &x[n..], torques, &mut self.acceleration)
+        {
             return self.fallback.evaluate(x, torques);
-        }
-        let (q, qd) = self.stepped.split_at_mut(n);
-        self.stepper.read_state(q, qd);
-        for ((a, v1), v0) in self.acceleration.iter_mut().zip(&*qd).zip(&x[n..]) {
-            *a = (v1 - v0) / self.dt;
         }
         for (s, a) in self.noise.iter_mut().zip(&self.acceleration) {
             *s = self.floor.max(self.relative * a.abs());
@@ -287,67 +250,34 @@ impl ObservationModel for GpCamera {
     }
 }
 
-/// The acceleration of one linearly implicit Euler step of the arm's dynamics, (M + dt D)^-1 (u -
-/// C qd - G - D qd) at x = [q, qd], straight from the mass matrix and bias (no friction, no
-/// limits): the tests' reference for [`ArmTransition`].
-#[cfg(test)]
-pub(crate) fn implicit_acceleration(
-    model: &Arc<ArmModel>,
-    gravity: [f64; 3],
-    x: &[f64],
-    u: &[f64],
-    dt: f64,
-) -> Vec<f64> {
-    let n = model.joints.len();
-    let mut d = crate::arm::Dynamics::new(model.clone(), gravity);
-    d.set_configuration(&x[..n]);
-    d.compute(&x[n..]);
-    let mut m = d.mass_matrix().clone();
-    let mut rhs = nalgebra::DVector::zeros(n);
-    for (i, joint) in model.joints.iter().enumerate() {
-        m[(i, i)] += dt * joint.damping;
-        rhs[i] = u[i] - d.bias()[i] - joint.damping * x[n + i];
-    }
-    m.lu()
-        .solve(&rhs)
-        .expect("regular")
-        .iter()
-        .copied()
-        .collect()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::arm::Dynamics;
 
-    /// The arm transition's acceleration solves the equations of motion of one linearly implicit
-    /// step, (M + dt D) qdd + C qd + G + D qd = u, its noise is max(floor, relative |qdd|), and
-    /// constant velocity has no acceleration and its own noise (against finite differences of
-    /// simulated motion: tests/estimator_models.rs).
+    /// The arm transition's acceleration solves the equations of motion M qdd + C qd + G + D qd
+    /// = u, its noise is max(floor, relative |qdd|), and constant velocity has no acceleration
+    /// and its own noise (against finite differences of simulated motion: tests/estimator_models.rs).
     #[test]
     fn the_arm_transition_is_the_models_forward_dynamics() {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("urdf/planar_2dof.urdf");
         let model = Arc::new(crate::arm::load_urdf(&path).unwrap());
-        let dt = 1e-3;
-        let mut t = ArmTransition::new(model.clone(), [0.0, 0.0, -9.81], dt, 2.0, 0.1, 200.0);
+        let mut t = ArmTransition::new(model.clone(), [0.0, 0.0, -9.81], 2.0, 0.1, 200.0);
         let x = [0.3, -0.7, 0.5, -1.0];
         let u = [40.0, -3.0];
         let tr = t.evaluate(&x, &u);
         let acc = tr.acceleration.expect("a regular mass matrix").to_vec();
         let noise = tr.noise.to_vec();
+        // M qdd + C qd + G + D qd = u, by the independent closed form of the two-link arm.
         let mut d = Dynamics::new(model.clone(), [0.0, 0.0, -9.81]);
         let (m, _) = d.mass_matrix_and_gravity(&x[..2]);
         d.set_configuration(&x[..2]);
         d.compute(&x[2..]);
         let bias = d.bias().clone();
         for i in 0..2 {
-            let damping = model.joints[i].damping;
             let lhs = m[(i, 0)] * acc[0]
                 + m[(i, 1)] * acc[1]
-                + dt * damping * acc[i]
                 + bias[i]
-                + damping * x[2 + i];
+                + model.joints[i].damping * x[2 + i];
             assert!((lhs - u[i]).abs() < 1e-9, "joint {i}: {lhs} vs {}", u[i]);
             assert_eq!(noise[i], f64::max(2.0, 0.1 * acc[i].abs()));
         }
@@ -357,51 +287,8 @@ mod tests {
         assert_eq!(tr.noise, &[200.0, 200.0]);
     }
 
-    /// A joint whose damping stops it within a tick (D dt / I = 300): one implicit step takes
-    /// its velocity v to v / (1 + D dt / I), never past zero, where the continuous-time
-    /// acceleration taken over the tick would turn it round at 299 times its speed.
-    #[test]
-    fn heavy_damping_on_a_light_link_is_stepped_stably() {
-        let text = r#"<robot name="light"><link name="base"/>
-            <link name="l1"><inertial><origin xyz="0 0 0"/><mass value="0.1"/>
-            <inertia ixx="1e-4" ixy="0" ixz="0" iyy="1e-4" iyz="0" izz="1e-4"/></inertial></link>
-            <joint name="j1" type="continuous"><parent link="base"/><child link="l1"/>
-            <axis xyz="0 0 1"/><dynamics damping="30" friction="0"/></joint></robot>"#;
-        let model =
-            Arc::new(crate::arm::parse_urdf(text, std::path::Path::new("light.urdf")).unwrap());
-        let dt = 1e-3;
-        let mut t = ArmTransition::new(model, [0.0, 0.0, -9.81], dt, 2.0, 0.1, 200.0);
-        let v = 2.0;
-        let a = t.evaluate(&[0.0, v], &[0.0]).acceleration.unwrap()[0];
-        let next = v + dt * a;
-        let want = v / (1.0 + 30.0 * dt / 1e-4);
-        assert!((next - want).abs() < 1e-12, "{next} against {want}");
-    }
-
-    /// A joint held by its Coulomb friction (the torque below the friction bound) stays at rest
-    /// in the model's step, as the plant's friction impulse holds it.
-    #[test]
-    fn a_joint_held_by_friction_stays_at_rest() {
-        let text = r#"<robot name="sticky"><link name="base"/>
-            <link name="l1"><inertial><origin xyz="0 0 0"/><mass value="0.1"/>
-            <inertia ixx="1e-4" ixy="0" ixz="0" iyy="1e-4" iyz="0" izz="1e-4"/></inertial></link>
-            <joint name="j1" type="continuous"><parent link="base"/><child link="l1"/>
-            <axis xyz="0 0 1"/><dynamics damping="0" friction="0.5"/></joint></robot>"#;
-        let model =
-            Arc::new(crate::arm::parse_urdf(text, std::path::Path::new("sticky.urdf")).unwrap());
-        let mut t = ArmTransition::new(model, [0.0, 0.0, -9.81], 1e-3, 2.0, 0.1, 200.0);
-        assert_eq!(
-            t.evaluate(&[0.0, 0.0], &[0.3]).acceleration.unwrap()[0],
-            0.0
-        );
-        // Above the bound it moves, at (u - F) / I.
-        let a = t.evaluate(&[0.0, 0.0], &[0.7]).acceleration.unwrap()[0];
-        assert!((a - 0.2 / 1e-4).abs() < 1e-6 * 2000.0, "{a}");
-    }
-
     /// The process noise of an uncertain model against a direct evaluation: the torque errors
-    /// of each assumed parameter error (the inertial one entry by entry of M qdd) carried
-    /// through the step's (M + dt D)^-1 from nalgebra's inverse.
+    /// of each assumed parameter error carried through M^-1 from nalgebra's inverse.
     #[test]
     fn the_parameter_noise_is_the_torque_error_carried_through_the_inverse_mass_matrix() {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("urdf/spatial_3dof.urdf");
@@ -414,32 +301,19 @@ mod tests {
             friction: 0.3,
         };
         let g = [0.0, 0.0, -9.81];
-        let dt = 1e-3;
-        let mut t = ArmTransition::new(model.clone(), g, dt, 0.0, 0.0, 200.0).with_uncertainty(u);
+        let mut t = ArmTransition::new(model.clone(), g, 0.0, 0.0, 200.0).with_uncertainty(u);
         let x = [0.3, -0.7, 0.4, 0.5, -1.0, 0.8];
         let tau = [4.0, -3.0, 1.0];
-        let tr = t.evaluate(&x, &tau);
-        let noise = tr.noise.to_vec();
-        let acc = tr.acceleration.unwrap().to_vec();
+        let noise = t.evaluate(&x, &tau).noise.to_vec();
         let mut d = Dynamics::new(model.clone(), g);
         d.set_configuration(&x[..3]);
         d.compute(&x[3..]);
-        let mut md = d.mass_matrix().clone();
-        for (i, joint) in model.joints.iter().enumerate() {
-            md[(i, i)] += dt * joint.damping;
-        }
-        let minv = md.try_inverse().unwrap();
-        let m = d.mass_matrix();
+        let minv = d.mass_matrix().clone().try_inverse().unwrap();
         let com = t.com_torque.clone();
         for i in 0..3 {
             let mut var = 0.0;
             for (j, joint) in model.joints.iter().enumerate() {
-                let sum = tau[j] - d.bias()[j] - joint.damping * x[3 + j];
-                let entries = (0..3)
-                    .map(|k| (m[(j, k)] * acc[k]).powi(2))
-                    .sum::<f64>()
-                    .sqrt();
-                let inertial = sum.abs().max(entries);
+                let inertial = tau[j] - d.bias()[j] - joint.damping * x[3 + j];
                 let s2 = (u.mass.max(u.inertia) * inertial).powi(2)
                     + (u.mass * d.bias()[j]).powi(2)
                     + com[j].powi(2)

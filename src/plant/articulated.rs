@@ -200,15 +200,9 @@ impl ArticulatedPlant {
         self.engaged = engaged;
     }
 
-    /// The model's dynamics, as the last step left them: M and the bias torques at the state the
-    /// step started from, and the factor of its last solve.
-    pub(crate) fn dynamics(&self) -> &Dynamics {
-        &self.dynamics
-    }
-
     /// Advances by `dt` in the settings' substeps with the current torques. Returns false if the
     /// dynamics became singular (the state is then unchanged).
-    pub(crate) fn advance(&mut self, dt: f64) -> bool {
+    fn advance(&mut self, dt: f64) -> bool {
         let substeps = self.settings.substeps.max(1);
         let h = dt / substeps as f64;
         let tau = std::mem::take(&mut self.torques);

@@ -243,7 +243,6 @@ pub fn build(method: Method, ctx: &MethodContext<'_>) -> Result<MethodParts, Sce
             kc.process_model,
             model.clone(),
             sc.robot.gravity,
-            sc.dt,
             &sc.model,
             acceleration_noise,
         )
@@ -272,7 +271,6 @@ pub fn build(method: Method, ctx: &MethodContext<'_>) -> Result<MethodParts, Sce
                 &sc.hybrid,
                 model.clone(),
                 sc.robot.gravity,
-                sc.dt,
                 &sc.model,
                 sc.belief.acceleration_bound,
             );
