@@ -171,12 +171,11 @@ fn the_evaluation_campaign_is_generated_arms_apart_from_development() {
 /// misses (docs/arms.md, "Arms nobody tuned for").
 ///
 /// Opt-in (`cargo test --release --test generated_arms -- --ignored`): it misses today, and it
-/// takes 5-20 minutes on two cores (20 arms' `init`, camera models and detector calibrations,
-/// 11 methods). Measured 2026-12-04 with a build since reverted (docs/arms.md): the hybrid
-/// raised one alarm on one healthy arm and was degraded or failed where the oracle recovers in
-/// 3 of the 18 freezes.
+/// takes 4-20 minutes on two cores (20 arms' `init`, camera models and detector calibrations,
+/// 11 methods). Measured 2026-12-04 (docs/arms.md): the hybrid raises 21 alarms on 7 of the 20
+/// healthy arms and is degraded or failed where the oracle recovers in 3 of the 18 freezes.
 #[test]
-#[ignore = "opt-in: misses today and takes 5-20 minutes (docs/arms.md, \"Arms nobody tuned for\")"]
+#[ignore = "opt-in: misses today and takes 4-20 minutes (docs/arms.md, \"Arms nobody tuned for\")"]
 fn every_method_holds_on_twenty_generated_arms_nobody_tuned_for() {
     use aift::scenario::Method;
     use aift::scenario::campaign::{Campaign, Shard, Verdict, run_campaign};
