@@ -6,6 +6,20 @@ mod common;
 
 use common::aift_in as aift;
 
+/// Writes `arm{seed}.urdf` with `gen-arm` into `dir` and runs `init` on it: the scenario's path
+/// and `init`'s output (it may refuse the arm).
+fn generate_and_init(
+    seed: u64,
+    dir: &std::path::Path,
+) -> (std::path::PathBuf, std::process::Output) {
+    let urdf = dir.join(format!("arm{seed}.urdf"));
+    let scenario = dir.join(format!("arm{seed}.toml"));
+    let (u, sc) = (urdf.to_str().unwrap(), scenario.to_str().unwrap());
+    common::aift_ok(&["gen-arm", "--seed", &seed.to_string(), "--out", u], dir);
+    let init = aift(&["init", "--urdf", u, "--out", sc], dir);
+    (scenario, init)
+}
+
 #[test]
 fn the_same_seed_gives_the_same_arm_and_the_joint_count_asked_for() {
     let tmp = tempfile::tempdir().unwrap();
@@ -61,22 +75,12 @@ fn init_holds_generated_arms_it_never_saw() {
     let tmp = tempfile::tempdir().unwrap();
     let mut misses = Vec::new();
     for seed in 77001..77011u64 {
-        let urdf = tmp.path().join(format!("arm{seed}.urdf"));
-        let scenario = tmp.path().join(format!("arm{seed}.toml"));
-        let s = seed.to_string();
-        common::aift_ok(
-            &["gen-arm", "--seed", &s, "--out", urdf.to_str().unwrap()],
-            tmp.path(),
-        );
-        common::aift_ok(
-            &[
-                "init",
-                "--urdf",
-                urdf.to_str().unwrap(),
-                "--out",
-                scenario.to_str().unwrap(),
-            ],
-            tmp.path(),
+        let (scenario, init) = generate_and_init(seed, tmp.path());
+        assert_eq!(
+            init.status.code(),
+            Some(0),
+            "{}",
+            String::from_utf8_lossy(&init.stderr)
         );
         let set = ["plant.engine=\"articulated\"".to_string()];
         let loaded = aift::scenario::LoadedScenario::from_file(&scenario, &set).unwrap();
@@ -114,18 +118,16 @@ fn the_evaluation_campaign_is_generated_arms_apart_from_development() {
         "run seeds {eval_seeds:?} overlap the development campaign's {dev_seeds:?}"
     );
     assert!(config.seeds >= 5);
-    let kinds: std::collections::BTreeSet<String> = config
-        .kinds
-        .iter()
-        .map(|k| {
-            format!("{k:?}")
-                .split([' ', '{'])
-                .next()
-                .unwrap()
-                .to_string()
-        })
-        .collect();
-    assert_eq!(kinds.len(), 8, "{kinds:?}");
+    // Every fault kind, at the development campaign's sizes, onsets, pairs and verdicts.
+    let kinds: std::collections::HashSet<_> =
+        config.kinds.iter().map(std::mem::discriminant).collect();
+    assert_eq!(kinds.len(), 8, "{:?}", config.kinds);
+    assert_eq!(config.kinds, dev.kinds);
+    assert_eq!(config.pairs, dev.pairs);
+    assert_eq!(
+        (&config.verdict, &config.onsets, &config.defaults),
+        (&dev.verdict, &dev.onsets, &dev.defaults)
+    );
     let tmp = tempfile::tempdir().unwrap();
     for arm in &config.arms {
         let seed: u64 = arm.name.strip_prefix("arm").unwrap().parse().unwrap();
@@ -188,28 +190,8 @@ fn every_method_holds_on_twenty_generated_arms_nobody_tuned_for() {
     while count < 20 {
         assert!(seed < 70_025, "init refused {refused:?}");
         let name = format!("arm{seed}");
-        let urdf = tmp.path().join(format!("{name}.urdf"));
-        let scenario = tmp.path().join(format!("{name}.toml"));
-        common::aift_ok(
-            &[
-                "gen-arm",
-                "--seed",
-                &seed.to_string(),
-                "--out",
-                urdf.to_str().unwrap(),
-            ],
-            tmp.path(),
-        );
-        let init = aift(
-            &[
-                "init",
-                "--urdf",
-                urdf.to_str().unwrap(),
-                "--out",
-                scenario.to_str().unwrap(),
-            ],
-            tmp.path(),
-        );
+        let (scenario, init) = generate_and_init(seed, tmp.path());
+        let urdf = scenario.with_extension("urdf");
         if init.status.code() == Some(0) {
             let n = aift::arm::load_urdf(&urdf).unwrap().joints.len() as u64;
             // xorshift: a random joint per arm, the same in every run of the test.
@@ -247,7 +229,7 @@ fn every_method_holds_on_twenty_generated_arms_nobody_tuned_for() {
     let records = run_campaign(&campaign, Shard::WHOLE, None, &|_, _| {}).unwrap();
     let mut misses = Vec::new();
     let mut alarms = std::collections::BTreeMap::<Method, usize>::new();
-    let mut oracle_misses = Vec::new();
+    let mut oracle_misses = std::collections::BTreeSet::new();
     for run in &records.runs {
         let cell = &campaign.cells[run.cell];
         let arm = &campaign.config.arms[cell.arm].name;
@@ -266,7 +248,7 @@ fn every_method_holds_on_twenty_generated_arms_nobody_tuned_for() {
                 ));
             }
         } else if run.method == Method::Oracle && run.verdict != Verdict::Recovered {
-            oracle_misses.push(format!("{arm} {}", cell.label));
+            oracle_misses.insert(run.cell);
         }
     }
     for run in &records.runs {
@@ -275,7 +257,7 @@ fn every_method_holds_on_twenty_generated_arms_nobody_tuned_for() {
             continue;
         }
         let arm = &campaign.config.arms[cell.arm].name;
-        if !oracle_misses.contains(&format!("{arm} {}", cell.label)) {
+        if !oracle_misses.contains(&run.cell) {
             misses.push(format!(
                 "{arm} {}: the hybrid {:?}, the oracle recovered",
                 cell.label, run.verdict
@@ -283,6 +265,13 @@ fn every_method_holds_on_twenty_generated_arms_nobody_tuned_for() {
         }
     }
     eprintln!("false alarms on the 20 healthy runs, per method: {alarms:?}");
+    let oracle_misses: Vec<String> = oracle_misses
+        .iter()
+        .map(|&c| {
+            let cell = &campaign.cells[c];
+            format!("{} {}", campaign.config.arms[cell.arm].name, cell.label)
+        })
+        .collect();
     eprintln!(
         "encoder freezes the oracle does not recover: {oracle_misses:?}; init refused {refused:?}"
     );

@@ -192,7 +192,7 @@ fn validate(config: &CampaignConfig, path: &Path) -> Result<Vec<Method>, Scenari
     if !(1..=MAX_SEEDS).contains(&config.seeds) {
         return Err(bad("seeds", format!("must be in 1..={MAX_SEEDS}")));
     }
-    if config.first_seed == 0 || config.first_seed > u64::MAX / 2 {
+    if !(1..=1u64 << 63).contains(&config.first_seed) {
         return Err(bad("first_seed", "must be in 1..=2^63".into()));
     }
     if config.arms.is_empty() {
