@@ -214,3 +214,42 @@ fn both_engines_converge_to_one_trajectory_on_the_7_dof_arm() {
     assert!(errors[0] > 8.0 * errors[2], "{errors:?}");
     assert!(errors[2] < 1e-3, "{errors:?}");
 }
+
+/// The authors' MATLAB plant (`integrator = "explicit-euler"`, one substep): every tick equals
+/// forward Euler on the closed-form dynamics, q' = q + h qd, qd' = qd + h M^-1 (tau - C qd - D qd
+/// - G), to rounding, over 2 s of a swing.
+#[test]
+fn explicit_euler_is_forward_euler_on_the_closed_form_dynamics() {
+    let oracle = PaperArm::default();
+    let mut a = arm(
+        "urdf/planar_2dof.urdf",
+        Engine::Articulated,
+        Integrator::ExplicitEuler,
+        1,
+    );
+    let (mut q, mut qd) = ([0.3, 0.2], [0.0, 0.0]);
+    let tau = [30.0, -8.0];
+    a.set_state(&q, &qd);
+    a.set_torques(&tau);
+    let h = 1e-3;
+    let mut worst: f64 = 0.0;
+    for _ in 0..2000 {
+        let qdd = oracle.acceleration(q, qd, tau);
+        q = [q[0] + h * qd[0], q[1] + h * qd[1]];
+        qd = [qd[0] + h * qdd[0], qd[1] + h * qdd[1]];
+        a.step(h);
+        let (aq, aqd) = a.state();
+        worst = worst.max(max_diff(&aq, &q)).max(max_diff(&aqd, &qd) * h);
+    }
+    eprintln!("explicit Euler against the oracle stepped by hand: {worst:.1e}");
+    assert!(worst < 1e-12, "{worst}");
+    // First order: not the semi-implicit map (which differs by O(h) per unit time).
+    let mut e = arm(
+        "urdf/planar_2dof.urdf",
+        Engine::Articulated,
+        Integrator::Euler,
+        1,
+    );
+    let (qe, _) = swing(e.as_mut(), &[0.3, 0.2], &tau, 2.0);
+    assert!(max_diff(&qe, &q) > 1e-6);
+}

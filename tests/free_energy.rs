@@ -149,3 +149,57 @@ fn gauss_newton_step_lands_on_the_quadratic_models_minimum() {
         assert!(g.abs() < 1e-4, "gradient {g} after the GN step");
     }
 }
+
+/// The authors' MATLAB form (`prediction = "authors-matlab"`, a compatibility setting): two ticks
+/// of the gradient update equal their `mu_dot` and `mu_dot_p` lines evaluated by hand, the extra
+/// P_mu0 (mu(i) - mu(i-1)) term of the velocity update included; and it refuses Gauss-Newton.
+#[test]
+fn the_authors_matlab_form_is_their_update_line_by_line() {
+    let (h, k) = (1e-3, 200.0);
+    let config = UaicConfig {
+        update: UpdateScheme::Gradient,
+        kappa_mu: k,
+        prediction: Prediction::AuthorsMatlab,
+        prior_position_precision: Some(1.0),
+        prior_velocity_precision: Some(1.0),
+        prior_warmup_ticks: 0,
+        ..UaicConfig::default()
+    };
+    config.validate(h).unwrap();
+    let mut c = Uaic::new(config.clone(), observation(gp()), h);
+    let precisions = [1.0, 1.0, 1.0, 1.0, 0.0, 0.0];
+    let r0 = readings();
+    let mut r1 = readings();
+    r1.values[0] = Some(-0.58);
+    r1.values[1] = Some(0.25);
+    r1.values[2] = Some(0.3);
+    r1.values[3] = Some(-0.4);
+    let y = |r: &Readings, i: usize| r.values[i].unwrap();
+    c.step(&r0, &precisions);
+    c.step(&r1, &precisions);
+    for j in 0..2 {
+        // Tick 1 starts at the readings with mu(i-1) = mu(i): mu1 = mu0 + h mu_p0, mu_p1 = mu_p0.
+        let (mu0, v0) = (y(&r0, j), y(&r0, 2 + j));
+        let mu1 = mu0 + h * (v0 - k * (-(y(&r0, j) - mu0) + (mu0 - mu0)));
+        let v1 = v0 + h * (0.0 - k * (-(y(&r0, 2 + j) - v0) + (mu0 - mu0) + (v0 - v0)));
+        let mu2 = mu1 + h * (v1 - k * (-(y(&r1, j) - mu1) + (mu1 - mu0)));
+        let v2 = v1 + h * (0.0 - k * (-(y(&r1, 2 + j) - v1) + (mu1 - mu0) + (v1 - v0)));
+        assert!(
+            (c.mu()[j] - mu2).abs() < 1e-15,
+            "mu{j}: {} vs {mu2}",
+            c.mu()[j]
+        );
+        assert!(
+            (c.mu_p()[j] - v2).abs() < 1e-15,
+            "mu_p{j}: {} vs {v2}",
+            c.mu_p()[j]
+        );
+    }
+    let e = UaicConfig {
+        update: UpdateScheme::GaussNewton,
+        ..config
+    }
+    .validate(h)
+    .unwrap_err();
+    assert_eq!(e.field, "prediction");
+}

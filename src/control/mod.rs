@@ -21,7 +21,31 @@ pub struct ControlConfig {
     pub kappa_u: Option<f64>,
     /// Control precision P_u, used with a finite kappa_u.
     pub control_precision: f64,
+    /// Which belief f* reads: `updated` (this tick's, after the readings; default) or
+    /// `previous` (the one before this tick's update, as the authors' MATLAB benchmark does).
+    pub belief: BeliefTiming,
+    /// Ticks between the law's output and the torque reaching the joints (0..=1000): the torque
+    /// applied at tick k is the output of tick k - d, zero before. Default 0; the authors' MATLAB
+    /// benchmark: 1 (with `belief = "previous"`, two ticks behind the readings).
+    pub delay_ticks: u32,
 }
+
+/// Which belief the control law reads each tick.
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema,
+)]
+#[serde(rename_all = "kebab-case")]
+pub enum BeliefTiming {
+    /// The belief updated with this tick's readings.
+    #[default]
+    Updated,
+    /// The belief before this tick's update (at the first tick: its initialisation from the
+    /// first readings). A compatibility setting: the authors' `u(:,i+1) = ... mu(:,i)`.
+    Previous,
+}
+
+/// Most ticks of actuation delay.
+pub const MAX_DELAY_TICKS: u32 = 1000;
 
 impl Default for ControlConfig {
     fn default() -> Self {
@@ -29,6 +53,8 @@ impl Default for ControlConfig {
             gains: PidGains::paper(),
             kappa_u: None,
             control_precision: 1.0,
+            belief: BeliefTiming::Updated,
+            delay_ticks: 0,
         }
     }
 }
@@ -47,6 +73,12 @@ impl ControlConfig {
             }
         };
         positive("control_precision", self.control_precision)?;
+        if self.delay_ticks > MAX_DELAY_TICKS {
+            return Err(crate::SettingError::new(
+                "delay_ticks",
+                format!("{} must be <= {MAX_DELAY_TICKS}", self.delay_ticks),
+            ));
+        }
         if let Some(k) = self.kappa_u {
             positive("kappa_u", k)?;
         }
@@ -65,6 +97,9 @@ pub struct Control {
     mu_u: Vec<f64>,
     torques: Vec<f64>,
     free_energy: f64,
+    /// The law's outputs waiting to be applied (`delay_ticks` of them, oldest first).
+    pending: std::collections::VecDeque<Vec<f64>>,
+    belief_timing: BeliefTiming,
 }
 
 impl Control {
@@ -78,11 +113,18 @@ impl Control {
             mu_u: vec![0.0; n],
             torques: vec![0.0; n],
             free_energy: 0.0,
+            pending: (0..config.delay_ticks).map(|_| vec![0.0; n]).collect(),
+            belief_timing: config.belief,
         }
     }
 
-    /// One tick: f* on the belief (mu, mu') toward `target`, then u = f* or mu_u descending F.
-    /// Returns the torques.
+    /// Which belief the law reads (the runner hands it over).
+    pub fn belief_timing(&self) -> BeliefTiming {
+        self.belief_timing
+    }
+
+    /// One tick: f* on the belief (mu, mu') toward `target`, then u = f* or mu_u descending F,
+    /// delayed by `delay_ticks`. Returns the torques to apply this tick.
     pub fn step(&mut self, mu: &[f64], mu_p: &[f64], target: &[f64], dt: f64) -> &[f64] {
         self.pid.step(mu, mu_p, target, dt, &mut self.f_star);
         self.free_energy = 0.0;
@@ -100,6 +142,10 @@ impl Control {
                 }
                 self.torques.copy_from_slice(&self.mu_u);
             }
+        }
+        if let Some(mut oldest) = self.pending.pop_front() {
+            std::mem::swap(&mut oldest, &mut self.torques);
+            self.pending.push_back(oldest);
         }
         &self.torques
     }
@@ -124,8 +170,41 @@ impl Control {
         self.pid.integral()
     }
 
-    /// Zero torques (after a refused belief update).
+    /// Zero torques (after a refused belief update), and none pending.
     pub fn hold(&mut self) {
         self.torques.fill(0.0);
+        for p in &mut self.pending {
+            p.fill(0.0);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_delayed_law_applies_each_output_d_ticks_later_and_zero_before() {
+        let config = ControlConfig {
+            gains: PidGains::diagonal(vec![1.0], vec![0.0], vec![0.0], vec![0.0]),
+            delay_ticks: 2,
+            ..ControlConfig::default()
+        };
+        config.validate(1).unwrap();
+        let mut c = Control::new(&config);
+        let applied: Vec<f64> = (0..5)
+            .map(|k| c.step(&[0.0], &[0.0], &[k as f64 + 1.0], 1e-3)[0])
+            .collect();
+        assert_eq!(applied, [0.0, 0.0, 1.0, 2.0, 3.0]);
+        // A hold clears what is pending.
+        c.hold();
+        assert_eq!(c.step(&[0.0], &[0.0], &[9.0], 1e-3)[0], 0.0);
+        assert_eq!(c.step(&[0.0], &[0.0], &[9.0], 1e-3)[0], 0.0);
+        assert_eq!(c.step(&[0.0], &[0.0], &[9.0], 1e-3)[0], 9.0);
+        let too_long = ControlConfig {
+            delay_ticks: MAX_DELAY_TICKS + 1,
+            ..config
+        };
+        assert_eq!(too_long.validate(1).unwrap_err().field, "delay_ticks");
     }
 }

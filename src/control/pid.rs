@@ -1,8 +1,11 @@
 //! f*: the control law inside p(u | x) = N(f*(mu_x, mu_d), P_u^-1): a PID on the beliefs
 //! (docs/method.md, "The control law"; the ECC paper: "converges to a PID").
 //!
-//! `f* = Kp (mu_d - mu) - Kd mu' + I`, with `I <- clamp(I + Ki dt (mu_d - mu), -I_max, I_max)`
-//! (anti-windup by clamping the integral torque). Gains are in SI units, independent of dt.
+//! `f* = Kp (mu_d - mu) - Kd mu' + I`, with `I <- clamp(I + Ki dt (mu_d - mu), I_lo, I_hi)`
+//! (anti-windup by clamping the integral torque; I_lo = -I_max, I_hi = I_max unless set one by
+//! one). Kp and Kd are diagonal unless full matrices are given (a compatibility setting: the
+//! authors' MATLAB benchmark damps joint 2 by joint 1's velocity belief). Gains are in SI units,
+//! independent of dt.
 
 use serde::{Deserialize, Serialize};
 
@@ -18,6 +21,23 @@ pub struct PidGains {
     pub ki: Vec<f64>,
     /// Largest integral torque magnitude (N m).
     pub integral_limit: Vec<f64>,
+    /// Full proportional-gain matrix (N m / rad), one row per joint, used in place of diag(kp);
+    /// its diagonal must equal `kp`. Absent: diag(kp).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub kp_matrix: Option<Vec<Vec<f64>>>,
+    /// Full derivative-gain matrix (N m s / rad), one row per joint, used in place of diag(kd);
+    /// its diagonal must equal `kd`. Absent: diag(kd). The authors' MATLAB benchmark:
+    /// `[[100, 0], [20, 0]]`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub kd_matrix: Option<Vec<Vec<f64>>>,
+    /// Lower clamp of the integral torque per joint (N m; `-inf` for none). Absent:
+    /// -integral_limit.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub integral_lower: Option<Vec<f64>>,
+    /// Upper clamp of the integral torque per joint (N m; `inf` for none). Absent:
+    /// +integral_limit.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub integral_upper: Option<Vec<f64>>,
 }
 
 impl PidGains {
@@ -30,7 +50,38 @@ impl PidGains {
             kd: vec![100.0, 20.0],
             ki: vec![150.0, 150.0],
             integral_limit: vec![50.0, 50.0],
+            kp_matrix: None,
+            kd_matrix: None,
+            integral_lower: None,
+            integral_upper: None,
         }
+    }
+
+    /// Diagonal gains (no matrix, a symmetric clamp).
+    pub fn diagonal(kp: Vec<f64>, kd: Vec<f64>, ki: Vec<f64>, integral_limit: Vec<f64>) -> Self {
+        Self {
+            kp,
+            kd,
+            ki,
+            integral_limit,
+            kp_matrix: None,
+            kd_matrix: None,
+            integral_lower: None,
+            integral_upper: None,
+        }
+    }
+
+    /// The integral clamp [lower, upper] of joint `i`.
+    pub fn integral_clamp(&self, i: usize) -> (f64, f64) {
+        let lo = self
+            .integral_lower
+            .as_ref()
+            .map_or(-self.integral_limit[i], |v| v[i]);
+        let hi = self
+            .integral_upper
+            .as_ref()
+            .map_or(self.integral_limit[i], |v| v[i]);
+        (lo, hi)
     }
 
     /// Checks the lengths and values; returns the offending field and why.
@@ -51,6 +102,74 @@ impl PidGains {
                 return Err(crate::SettingError::new(
                     name,
                     "entries must be finite, >= 0 and <= 1e12",
+                ));
+            }
+        }
+        for (name, diagonal, matrix) in [
+            ("kp_matrix", &self.kp, &self.kp_matrix),
+            ("kd_matrix", &self.kd, &self.kd_matrix),
+        ] {
+            let Some(m) = matrix else { continue };
+            if m.len() != n_joints || m.iter().any(|row| row.len() != n_joints) {
+                return Err(crate::SettingError::new(
+                    name,
+                    format!(
+                        "must be {n_joints} rows of {n_joints} entries (the arm has {n_joints} joints); \
+                         got {} rows of {:?} entries",
+                        m.len(),
+                        m.iter().map(Vec::len).collect::<Vec<_>>()
+                    ),
+                ));
+            }
+            if !m.iter().flatten().all(|x| x.is_finite() && x.abs() <= 1e12) {
+                return Err(crate::SettingError::new(
+                    name,
+                    "entries must be finite with |x| <= 1e12",
+                ));
+            }
+            let base = &name[..2];
+            if let Some(i) = (0..n_joints).find(|&i| m[i][i] != diagonal[i]) {
+                return Err(crate::SettingError::new(
+                    name,
+                    format!(
+                        "diagonal entry {i} is {}, but `{base}` says {} (the matrix's diagonal \
+                         must equal `{base}`)",
+                        m[i][i], diagonal[i]
+                    ),
+                ));
+            }
+        }
+        for (name, side) in [
+            ("integral_lower", &self.integral_lower),
+            ("integral_upper", &self.integral_upper),
+        ] {
+            let Some(v) = side else { continue };
+            if v.len() != n_joints {
+                return Err(crate::SettingError::new(
+                    name,
+                    format!("has {} entries; the arm has {n_joints} joints", v.len()),
+                ));
+            }
+            if v.iter()
+                .any(|x| x.is_nan() || x.abs() > 1e12 && x.is_finite())
+            {
+                return Err(crate::SettingError::new(
+                    name,
+                    "entries must be numbers with |x| <= 1e12, or -inf / inf for no clamp",
+                ));
+            }
+        }
+        for i in 0..n_joints {
+            let (lo, hi) = self.integral_clamp(i);
+            if lo > hi || lo == f64::INFINITY || hi == f64::NEG_INFINITY {
+                let name = if self.integral_lower.is_some() {
+                    "integral_lower"
+                } else {
+                    "integral_upper"
+                };
+                return Err(crate::SettingError::new(
+                    name,
+                    format!("joint {i}: the lower clamp {lo} is above the upper clamp {hi}"),
                 ));
             }
         }
@@ -88,9 +207,17 @@ impl Pid {
         let g = &self.gains;
         for i in 0..out.len() {
             let e = target[i] - mu[i];
-            let lim = g.integral_limit[i];
-            self.integral[i] = (self.integral[i] + g.ki[i] * dt * e).clamp(-lim, lim);
-            out[i] = g.kp[i] * e - g.kd[i] * mu_p[i] + self.integral[i];
+            let (lo, hi) = g.integral_clamp(i);
+            self.integral[i] = (self.integral[i] + g.ki[i] * dt * e).clamp(lo, hi);
+            let p = match &g.kp_matrix {
+                None => g.kp[i] * e,
+                Some(m) => (0..out.len()).map(|c| m[i][c] * (target[c] - mu[c])).sum(),
+            };
+            let d = match &g.kd_matrix {
+                None => g.kd[i] * mu_p[i],
+                Some(m) => (0..out.len()).map(|c| m[i][c] * mu_p[c]).sum(),
+            };
+            out[i] = p - d + self.integral[i];
         }
     }
 }
@@ -101,12 +228,12 @@ mod tests {
 
     #[test]
     fn integral_winds_up_to_its_clamp_and_no_further() {
-        let mut pid = Pid::new(PidGains {
-            kp: vec![0.0],
-            kd: vec![0.0],
-            ki: vec![50.0],
-            integral_limit: vec![5.0],
-        });
+        let mut pid = Pid::new(PidGains::diagonal(
+            vec![0.0],
+            vec![0.0],
+            vec![50.0],
+            vec![5.0],
+        ));
         let mut u = [0.0];
         for _ in 0..1000 {
             pid.step(&[0.0], &[0.0], &[1.0], 1e-3, &mut u);
@@ -119,14 +246,80 @@ mod tests {
 
     #[test]
     fn proportional_and_derivative_terms() {
-        let mut pid = Pid::new(PidGains {
-            kp: vec![250.0],
-            kd: vec![100.0],
-            ki: vec![0.0],
-            integral_limit: vec![0.0],
-        });
+        let mut pid = Pid::new(PidGains::diagonal(
+            vec![250.0],
+            vec![100.0],
+            vec![0.0],
+            vec![0.0],
+        ));
         let mut u = [0.0];
         pid.step(&[0.1], &[0.2], &[0.3], 1e-3, &mut u);
         assert!((u[0] - (250.0 * 0.2 - 100.0 * 0.2)).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_full_derivative_matrix_damps_one_joint_by_anothers_velocity() {
+        // The authors' MATLAB benchmark: [100, 0; 20, 0] * (0 - mu_p).
+        let mut g =
+            PidGains::diagonal(vec![250.0; 2], vec![100.0, 0.0], vec![0.0; 2], vec![0.0; 2]);
+        g.kd_matrix = Some(vec![vec![100.0, 0.0], vec![20.0, 0.0]]);
+        g.validate(2).unwrap();
+        let mut pid = Pid::new(g);
+        let mut u = [0.0; 2];
+        pid.step(&[0.1, 0.2], &[0.3, -0.7], &[0.5, 0.2], 1e-3, &mut u);
+        assert!((u[0] - (250.0 * 0.4 - 100.0 * 0.3)).abs() < 1e-12);
+        // Joint 2: no error, damped only by joint 1's velocity belief.
+        assert!((u[1] - (-20.0 * 0.3)).abs() < 1e-12);
+        // A proportional matrix couples the errors the same way.
+        let mut g = PidGains::diagonal(vec![2.0, 3.0], vec![0.0; 2], vec![0.0; 2], vec![0.0; 2]);
+        g.kp_matrix = Some(vec![vec![2.0, 1.0], vec![0.0, 3.0]]);
+        let mut pid = Pid::new(g);
+        pid.step(&[0.0, 0.0], &[0.0, 0.0], &[1.0, 2.0], 1e-3, &mut u);
+        assert_eq!(u, [4.0, 6.0]);
+    }
+
+    #[test]
+    fn an_upper_only_clamp_lets_the_integral_fall_without_bound() {
+        let mut g = PidGains::diagonal(vec![0.0], vec![0.0], vec![1000.0], vec![5.0]);
+        g.integral_lower = Some(vec![f64::NEG_INFINITY]);
+        g.integral_upper = Some(vec![4.5]);
+        g.validate(1).unwrap();
+        let mut pid = Pid::new(g);
+        let mut u = [0.0];
+        for _ in 0..100 {
+            pid.step(&[0.0], &[0.0], &[1.0], 1e-3, &mut u);
+        }
+        assert_eq!(u[0], 4.5);
+        for _ in 0..100 {
+            pid.step(&[0.0], &[0.0], &[-1.0], 1e-3, &mut u);
+        }
+        // 4.5 - 100 x 1.0: far below the symmetric limit of 5.
+        assert!((u[0] + 95.5).abs() < 1e-9, "{}", u[0]);
+    }
+
+    #[test]
+    fn matrices_and_clamps_are_checked_with_the_key_that_is_wrong() {
+        let base = PidGains::diagonal(vec![1.0; 2], vec![1.0; 2], vec![0.0; 2], vec![1.0; 2]);
+        let mut g = base.clone();
+        g.kd_matrix = Some(vec![vec![1.0, 0.0]]);
+        assert_eq!(g.validate(2).unwrap_err().field, "kd_matrix");
+        let mut g = base.clone();
+        g.kd_matrix = Some(vec![vec![1.0, 0.0], vec![0.0, 2.0]]);
+        let e = g.validate(2).unwrap_err();
+        assert!(
+            e.field == "kd_matrix" && e.message.contains("diagonal"),
+            "{e:?}"
+        );
+        let mut g = base.clone();
+        g.kp_matrix = Some(vec![vec![1.0, f64::NAN], vec![0.0, 1.0]]);
+        assert_eq!(g.validate(2).unwrap_err().field, "kp_matrix");
+        let mut g = base.clone();
+        g.integral_lower = Some(vec![0.0, 2.0]);
+        g.integral_upper = Some(vec![1.0, 1.0]);
+        let e = g.validate(2).unwrap_err();
+        assert!(e.message.contains("above"), "{e:?}");
+        let mut g = base;
+        g.integral_upper = Some(vec![1.0]);
+        assert_eq!(g.validate(2).unwrap_err().field, "integral_upper");
     }
 }

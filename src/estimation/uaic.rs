@@ -63,6 +63,12 @@ pub enum Prediction {
     Paper,
     /// Position prior residual mu - mu_{k-1} - dt mu' with the current velocity belief.
     Coupled,
+    /// A compatibility setting, not a recommendation: the authors' 2-DOF MATLAB benchmark
+    /// (`matlab/statistical_analysis.m`, the u-AIC branch): residuals against the previous belief
+    /// without motion, e_x = [mu - mu_{k-1}, mu' - mu'_{k-1}], and the velocity update carries
+    /// the extra term P_mu (mu - mu_{k-1}) of their `mu_dot_p` (not a gradient of F). Needs
+    /// `update = "gradient"` (docs/method.md, "aift against the authors' code").
+    AuthorsMatlab,
 }
 
 /// Settings of the u-AIC's belief (the scenario's `[belief]` section). Defaults: Gauss-Newton
@@ -163,6 +169,12 @@ impl UaicConfig {
             ));
         }
         positive("prior_velocity_precision", pv)?;
+        if self.prediction == Prediction::AuthorsMatlab && self.update != UpdateScheme::Gradient {
+            return Err(crate::SettingError::new(
+                "prediction",
+                "\"authors-matlab\" needs update = \"gradient\" (the authors' descent)",
+            ));
+        }
         if self.prior_warmup_ticks > 1_000_000_000 {
             return Err(crate::SettingError::new(
                 "prior_warmup_ticks",
@@ -408,7 +420,7 @@ impl Uaic {
         self.hessian.fill(0.0);
         for i in 0..n {
             match self.config.prediction {
-                Prediction::Paper => {
+                Prediction::Paper | Prediction::AuthorsMatlab => {
                     self.hessian[(i, i)] = pm;
                     self.hessian[(n + i, n + i)] = pv;
                 }
@@ -424,7 +436,7 @@ impl Uaic {
     }
 
     /// The prior residual e_x at `x` given the previous belief `prev` (paper: x - A prev;
-    /// coupled: A x - prev with A = [[I, -dt I], [0, I]]).
+    /// coupled: A x - prev with A = [[I, -dt I], [0, I]]; authors-matlab: x - prev).
     fn prior_residual(&self, x: &DVector<f64>, prev: &DVector<f64>, out: &mut [f64]) {
         let n = self.layout.n_joints();
         for i in 0..n {
@@ -433,6 +445,7 @@ impl Uaic {
             out[i] = match self.config.prediction {
                 Prediction::Paper => mu - pmu - self.dt * pmv,
                 Prediction::Coupled => mu - pmu - self.dt * mv,
+                Prediction::AuthorsMatlab => mu - pmu,
             };
             out[n + i] = mv - pmv;
         }
@@ -482,10 +495,18 @@ impl Uaic {
             f +=
                 0.5 * (pm * ex[i] * ex[i] - pm.ln()) + 0.5 * (pv * ex[n + i] * ex[n + i] - pv.ln());
             grad[i] += pm * ex[i];
-            grad[n + i] += pv * ex[n + i];
-            if self.config.prediction == Prediction::Coupled {
+            match self.config.prediction {
                 // d e_x,pos / d mu' = -dt.
-                grad[n + i] -= self.dt * pm * ex[i];
+                Prediction::Coupled => {
+                    grad[n + i] += pv * ex[n + i];
+                    grad[n + i] -= self.dt * pm * ex[i];
+                }
+                // The authors' mu_dot_p carries + P_mu0 (mu(i) - mu(i-1)), summed in their order.
+                Prediction::AuthorsMatlab => {
+                    grad[n + i] += pm * ex[i];
+                    grad[n + i] += pv * ex[n + i];
+                }
+                Prediction::Paper => grad[n + i] += pv * ex[n + i],
             }
         }
         (f, grad)

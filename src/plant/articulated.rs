@@ -5,7 +5,8 @@
 //! Two integrators. `Euler`: semi-implicit Euler with the joints' viscous damping implicit,
 //! (M + h D) qd' = M qd + h (tau - bias), q' = q + h qd', exactly the map rapier applies
 //! (docs/method.md, "Plant"), first order in the substep h. `Rk4`: classical Runge-Kutta on
-//! (q, qd), fourth order. Joint limits: an inelastic stop, by sequential impulses through M^-1;
+//! (q, qd), fourth order. `ExplicitEuler`: forward Euler, the authors' MATLAB plant (a
+//! compatibility setting). Joint limits: an inelastic stop, by sequential impulses through M^-1;
 //! Coulomb friction: impulses bounded by friction x h. Both act only when engaged.
 
 use std::sync::Arc;
@@ -28,6 +29,11 @@ pub enum Integrator {
     Euler,
     /// Classical fourth-order Runge-Kutta.
     Rk4,
+    /// Explicit (forward) Euler with the damping explicit: q' = q + h qd, qd' = qd + h qdd(q, qd).
+    /// A compatibility setting, not a recommendation: the plant of the authors' 2-DOF MATLAB
+    /// benchmark (`dq(:,i+1) = dq(:,i) + h*ddq(:,i); q(:,i+1) = q(:,i) + h*dq(:,i)`). Unstable
+    /// once h D / M exceeds 2.
+    ExplicitEuler,
 }
 
 /// Most substeps per tick.
@@ -39,7 +45,7 @@ pub const MAX_SUBSTEPS: usize = 1000;
 pub struct ArticulatedSettings {
     /// Substeps per tick (>= 1): 2 by default, the same first-order map as rapier's default.
     pub substeps: usize,
-    /// `euler` (rapier's map, default) or `rk4`.
+    /// `euler` (rapier's map, default), `rk4` or `explicit-euler` (the authors' MATLAB plant).
     pub integrator: Integrator,
 }
 
@@ -211,6 +217,7 @@ impl ArticulatedPlant {
             ok = match self.settings.integrator {
                 Integrator::Euler => self.euler(&tau, h),
                 Integrator::Rk4 => self.rk4(&tau, h),
+                Integrator::ExplicitEuler => self.explicit_euler(&tau, h),
             };
             if !ok {
                 break;
@@ -283,7 +290,31 @@ impl ArticulatedPlant {
             self.qd[i] =
                 k.qd0[i] + h / 6.0 * (kv[0][i] + 2.0 * kv[1][i] + 2.0 * kv[2][i] + kv[3][i]);
         }
-        // Limits and friction as an impulse at the end of the step.
+        self.end_of_step(k, h);
+        true
+    }
+
+    /// Forward Euler: qdd at the start of the step, q' = q + h qd, qd' = qd + h qdd.
+    fn explicit_euler(&mut self, tau: &[f64], h: f64) -> bool {
+        let n = self.q.len();
+        let mut k = std::mem::take(&mut self.rk4);
+        k.resize(n);
+        k.q0.copy_from_slice(&self.q);
+        if !self.acceleration(tau, &mut k.kv[0]) {
+            self.rk4 = k;
+            return false;
+        }
+        for i in 0..n {
+            self.q[i] += h * self.qd[i];
+            self.qd[i] += h * k.kv[0][i];
+        }
+        self.end_of_step(k, h);
+        true
+    }
+
+    /// Limits and friction as an impulse at the end of an explicit step that went from `k.q0`
+    /// to the current (q, qd); gives the scratch back.
+    fn end_of_step(&mut self, mut k: Rk4Scratch, h: f64) {
         k.q_end.copy_from_slice(&self.q);
         self.q.copy_from_slice(&k.q0);
         self.dynamics.set_configuration(&self.q);
@@ -297,7 +328,6 @@ impl ArticulatedPlant {
         }
         self.dynamics.set_configuration(&self.q);
         self.rk4 = k;
-        true
     }
 }
 

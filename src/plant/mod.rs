@@ -139,6 +139,7 @@ impl PlantSettings {
                 match self.articulated.integrator {
                     Integrator::Euler => "euler",
                     Integrator::Rk4 => "rk4",
+                    Integrator::ExplicitEuler => "explicit-euler",
                 },
                 self.articulated.substeps
             ),

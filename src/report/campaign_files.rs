@@ -14,7 +14,8 @@ use serde_json::json;
 use super::{ReportError, write_atomic};
 use crate::scenario::Method;
 use crate::scenario::campaign::{
-    CAMPAIGN_FORMAT, Campaign, CampaignRecords, CellSummary, MethodSummary, Verdict, summarise,
+    CAMPAIGN_FORMAT, Campaign, CampaignRecords, CellSummary, MethodSummary, ReachingProtocol,
+    Verdict, summarise,
 };
 
 /// The records file of a run or shard.
@@ -226,43 +227,48 @@ fn markdown(
         campaign.methods.len(),
         records.fingerprint
     );
-    let _ = writeln!(
-        out,
-        "Entries: `ok` recovered in every seed (final error within {} rad), `deg` degraded \
+    // A campaign of the reaching benchmark alone has no cell: no summary and no matrices, only
+    // each arm's conditions before the reaching table.
+    let grid = !campaign.cells.is_empty();
+    if grid {
+        let _ = writeln!(
+            out,
+            "Entries: `ok` recovered in every seed (final error within {} rad), `deg` degraded \
          (within {} rad in the worst seed), `FAIL (k/n)` failed (k of n seeds recovered; a \
          runaway: a joint at its limit or {} rad off), `DIV` diverged; the number is the \
          post-fault MSE of the faulty joints over the oracle's; `!` marks worse than no-FT (MSE \
          over 1.5x no-FT's and {:.0e} rad^2 above it, or final error {} rad above it).\n",
-        c.verdict.tolerance,
-        c.verdict.degraded,
-        c.verdict.runaway,
-        (c.verdict.tolerance / 20.0).powi(2),
-        0.5 * c.verdict.tolerance
-    );
-    out += "## Summary per method\n\n";
-    out += "| method | recovered | degraded | failed | diverged | worse than no-FT | recovers where the oracle does | within 10x oracle | false alarms / h (healthy) |\n";
-    out += "|---|---|---|---|---|---|---|---|---|\n";
-    for m in methods {
-        let _ = writeln!(
-            out,
-            "| {} | {} | {} | {} | {} | {} | {}/{} | {}/{} | {:.1} |",
-            m.method,
-            m.recovered,
-            m.degraded,
-            m.failed,
-            m.diverged,
-            m.worse_than_no_ft,
-            m.recovers_where_oracle_does,
-            m.oracle_recovers,
-            m.within_10x_oracle,
-            m.fault_cells,
-            m.false_alarms_per_hour
+            c.verdict.tolerance,
+            c.verdict.degraded,
+            c.verdict.runaway,
+            (c.verdict.tolerance / 20.0).powi(2),
+            0.5 * c.verdict.tolerance
         );
+        out += "## Summary per method\n\n";
+        out += "| method | recovered | degraded | failed | diverged | worse than no-FT | recovers where the oracle does | within 10x oracle | false alarms / h (healthy) |\n";
+        out += "|---|---|---|---|---|---|---|---|---|\n";
+        for m in methods {
+            let _ = writeln!(
+                out,
+                "| {} | {} | {} | {} | {} | {} | {}/{} | {}/{} | {:.1} |",
+                m.method,
+                m.recovered,
+                m.degraded,
+                m.failed,
+                m.diverged,
+                m.worse_than_no_ft,
+                m.recovers_where_oracle_does,
+                m.oracle_recovers,
+                m.within_10x_oracle,
+                m.fault_cells,
+                m.false_alarms_per_hour
+            );
+        }
     }
     for (a, arm) in c.arms.iter().enumerate() {
         let _ = write!(
             out,
-            "\n## {} (`{}`)\n\n{}\n\n| cell |",
+            "\n## {} (`{}`)\n\n{}\n",
             arm.name,
             arm.scenario.display(),
             records
@@ -270,6 +276,10 @@ fn markdown(
                 .get(a)
                 .map_or_else(String::new, |c| c.markdown())
         );
+        if !grid {
+            continue;
+        }
+        out += "\n| cell |";
         for m in &campaign.methods {
             let _ = write!(out, " {m} |");
         }
@@ -317,13 +327,29 @@ fn reaching_rows(
             }
             let n = rs.len() as f64;
             let settled: Vec<f64> = rs.iter().filter_map(|r| r.settling_time).collect();
+            let authors = campaign
+                .config
+                .reaching
+                .as_ref()
+                .is_some_and(|rc| rc.protocol == ReachingProtocol::Authors);
+            let duration = campaign
+                .config
+                .reaching
+                .as_ref()
+                .map_or(0.0, |rc| rc.duration);
             rows.push((
                 a,
                 m,
                 [
                     rs.iter().map(|r| r.belief_rmse).sum::<f64>() / n,
                     rs.iter().map(|r| r.overshoot).sum::<f64>() / n,
-                    if settled.is_empty() {
+                    if authors {
+                        // Their script counts a task that never settles as the run's length.
+                        rs.iter()
+                            .map(|r| r.settling_time.unwrap_or(duration))
+                            .sum::<f64>()
+                            / n
+                    } else if settled.is_empty() {
                         f64::NAN
                     } else {
                         settled.iter().sum::<f64>() / settled.len() as f64
@@ -338,10 +364,38 @@ fn reaching_rows(
     rows
 }
 
+/// The reaching table's heading and the sentence that defines its columns, per protocol.
+pub(crate) fn reaching_heading(campaign: &Campaign) -> (String, String) {
+    let Some(rc) = campaign.config.reaching.as_ref() else {
+        return (String::new(), String::new());
+    };
+    let source = if rc.targets_file.is_some() {
+        "tasks from the targets file"
+    } else {
+        "random tasks"
+    };
+    match rc.protocol {
+        ReachingProtocol::Aift => (
+            format!("Healthy reaching benchmark ({} {source} per arm)", rc.tasks),
+            "Means over the tasks: belief RMSE (rad), overshoot beyond the target (% of the step), settling time into a 0.5 % band (s; tasks that never settle counted apart), steady-state error (rad), false alarms (total).".into(),
+        ),
+        ReachingProtocol::Authors => (
+            format!(
+                "Reaching benchmark, the authors' protocol ({} {source} per arm, {} s each)",
+                rc.tasks, rc.duration
+            ),
+            format!(
+                "Means over the tasks, as the authors' matlab/statistical_analysis.m defines them: belief RMSE = the mean over joints of the RMS of q(i) - mu(i), mu(i) the belief before reading q(i) (rad); overshoot and settling time of joint {} by MATLAB's stepinfo (0.5 % band; a task that never settles counts as its length, as their script does; the count is given apart); steady-state error = the mean over joints of |mu_d - q(T)| (rad); false alarms (total).",
+                rc.step_joint
+            ),
+        ),
+    }
+}
+
 fn reaching_markdown(campaign: &Campaign, records: &CampaignRecords) -> String {
+    let (title, definition) = reaching_heading(campaign);
     let mut out = format!(
-        "\n## Healthy reaching benchmark ({} random tasks per arm)\n\nMeans over the tasks: belief RMSE (rad), overshoot beyond the target (% of the step), settling time into a 0.5 % band (s; tasks that never settle counted apart), steady-state error (rad), false alarms (total).\n\n| arm | method | belief RMSE | overshoot (%) | settling time (s) | not settled | steady-state error | false alarms |\n|---|---|---|---|---|---|---|---|\n",
-        campaign.config.reaching.as_ref().map_or(0, |r| r.tasks)
+        "\n## {title}\n\n{definition}\n\n| arm | method | belief RMSE | overshoot (%) | settling time (s) | not settled | steady-state error | false alarms |\n|---|---|---|---|---|---|---|---|\n"
     );
     for (a, m, v, unsettled) in reaching_rows(campaign, records) {
         let _ = writeln!(
@@ -440,6 +494,8 @@ pub fn campaign_json(
             "fault_cells": m.fault_cells,
             "false_alarms_per_hour": m.false_alarms_per_hour,
         })).collect::<Vec<_>>(),
+        "reaching_heading": reaching_heading(campaign).0,
+        "reaching_definition": reaching_heading(campaign).1,
         "reaching": reaching_rows(campaign, records).iter().map(|(a, m, v, unsettled)| json!({
             "arm": campaign.config.arms[*a].name,
             "method": m.name(),

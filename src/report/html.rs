@@ -817,7 +817,16 @@ fn cell_tables(body: &mut String, cells: &[Value]) {
 /// The healthy reaching benchmark's table, if the campaign ran it.
 fn reaching_table(body: &mut String, doc: &Value) {
     if let Some(reach) = doc["reaching"].as_array().filter(|a| !a.is_empty()) {
-        body.push_str("<h2>Healthy reaching benchmark</h2><table><tr><th>arm</th><th>method</th><th>belief RMSE</th><th>overshoot %</th><th>settling time (s)</th><th>not settled</th><th>steady-state error</th><th>false alarms</th></tr>");
+        let heading = doc["reaching_heading"]
+            .as_str()
+            .unwrap_or("Healthy reaching benchmark");
+        let _ = write!(
+            body,
+            "<h2>{}</h2><p>{}</p>",
+            esc(heading),
+            esc(doc["reaching_definition"].as_str().unwrap_or(""))
+        );
+        body.push_str("<table><tr><th>arm</th><th>method</th><th>belief RMSE</th><th>overshoot %</th><th>settling time (s)</th><th>not settled</th><th>steady-state error</th><th>false alarms</th></tr>");
         for r in reach {
             let g = |k: &str| value_html(r.get(k).unwrap_or(&Value::Null));
             let _ = write!(

@@ -254,7 +254,9 @@ pub struct PrecisionConfig {
     /// Upper clamp of every learner, as a multiple of the nominal precision.
     pub max_ratio: f64,
     /// Nominal precision per channel (enc.., tach.., cam_u, cam_v), overriding the physical
-    /// 1/sigma^2: e.g. all 1, the "tuning units" of the authors' code.
+    /// 1/sigma^2: e.g. all 1, the "tuning units" of the authors' code. 0 leaves a channel out of
+    /// the belief (an absent sensor: the authors' MATLAB benchmark has no camera); only with the
+    /// fixed-precision methods `no-ft` and `oracle`.
     pub nominal: Option<Vec<f64>>,
 }
 
@@ -298,10 +300,20 @@ impl PrecisionConfig {
                     ),
                 ));
             }
-            if !nominal.iter().all(|w| w.is_finite() && *w > 0.0) {
+            if !nominal.iter().all(|w| w.is_finite() && *w >= 0.0) {
                 return Err(SettingError::new(
                     "nominal",
-                    "values must be finite and > 0",
+                    "values must be finite and >= 0",
+                ));
+            }
+            if nominal.contains(&0.0) && !matches!(self.method, Method::NoFt | Method::Oracle) {
+                return Err(SettingError::new(
+                    "nominal",
+                    format!(
+                        "a 0 (a channel left out, an absent sensor) needs method \"no-ft\" or \
+                         \"oracle\"; the method is \"{}\"",
+                        self.method.info().name
+                    ),
                 ));
             }
         }

@@ -653,12 +653,12 @@ fn scenario_value(
             ..UaicConfig::default()
         },
         controller: ControlConfig {
-            gains: PidGains {
-                kp: rounded(&gains.kp),
-                kd: rounded(&gains.kd),
-                ki: rounded(&gains.ki),
-                integral_limit: rounded(&gains.ilim),
-            },
+            gains: PidGains::diagonal(
+                rounded(&gains.kp),
+                rounded(&gains.kd),
+                rounded(&gains.ki),
+                rounded(&gains.ilim),
+            ),
             ..ControlConfig::default()
         },
         precision: PrecisionConfig::default(),

@@ -225,6 +225,7 @@ pub fn build(method: Method, ctx: &MethodContext<'_>) -> Result<MethodParts, Sce
     let sc = ctx.setup.scenario();
     let p = &sc.precision;
     let nominal = ctx.nominal;
+    ctx.setup.check_method(method)?;
     let bounds = p.bounds();
     let observation = GpCamera::shared(*ctx.layout, ctx.setup.gp.clone());
     let uaic = || -> Box<dyn Estimator> {

@@ -612,8 +612,96 @@ impl Observer for DivergenceGuard {
     }
 }
 
+/// Step-response characteristics of one sampled response, by MATLAB's documented definitions
+/// (Control System Toolbox `stepinfo(y, t, yfinal)`, yinit = 0; docs/campaigns.md, "The
+/// authors' protocol").
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StepInfo {
+    /// 100 max(0, max_t s (y(t) - yfinal)) / |yfinal|, s the sign of the step (%).
+    pub overshoot: f64,
+    /// The first time after which |y - yfinal| stays within threshold |yfinal|, the crossing
+    /// between the last sample outside and the next interpolated linearly; `None` if the last
+    /// sample is outside.
+    pub settling_time: Option<f64>,
+}
+
+/// [`StepInfo`] of samples `y` at times j dt (j = 0, 1, ...) toward `yfinal` from yinit = 0.
+pub fn step_info(y: &[f64], dt: f64, yfinal: f64, threshold: f64) -> StepInfo {
+    let step = yfinal.abs();
+    let s = if yfinal < 0.0 { -1.0 } else { 1.0 };
+    let peak = y
+        .iter()
+        .map(|v| s * (v - yfinal))
+        .fold(f64::NEG_INFINITY, f64::max);
+    let overshoot = if step > 0.0 {
+        (100.0 * peak / step).max(0.0)
+    } else {
+        0.0
+    };
+    let tol = threshold * step;
+    let err = |j: usize| (y[j] - yfinal).abs();
+    let settling_time = match (0..y.len()).rev().find(|&j| err(j) > tol) {
+        None => Some(0.0),
+        Some(j) if j + 1 == y.len() => None,
+        Some(j) => {
+            let (e0, e1) = (err(j), err(j + 1));
+            Some(dt * (j as f64 + (e0 - tol) / (e0 - e1)))
+        }
+    };
+    StepInfo {
+        overshoot,
+        settling_time,
+    }
+}
+
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn step_info_follows_matlabs_definitions_on_a_sampled_second_order_response() {
+        // y = 1 - e^(-t) (cos 3t + sin 3t / 3): overshoot e^(-pi/3) = 35.09 %, peak at pi/3.
+        let dt = 1e-3;
+        let y: Vec<f64> = (0..20_001)
+            .map(|j| {
+                let t = j as f64 * dt;
+                1.0 - (-t).exp() * ((3.0 * t).cos() + (3.0 * t).sin() / 3.0)
+            })
+            .collect();
+        let info = super::step_info(&y, dt, 1.0, 0.005);
+        let peak = (-std::f64::consts::PI / 3.0).exp() * 100.0;
+        assert!((info.overshoot - peak).abs() < 1e-4, "{}", info.overshoot);
+        // Settled: the envelope e^(-t) sqrt(1 + 1/9) falls under 0.5 % near t = 5.35 s; the
+        // response crosses the band's edge last somewhere before that.
+        let ts = info.settling_time.unwrap();
+        let envelope = (1.0f64 + 1.0 / 9.0).sqrt();
+        let bound = (envelope / 0.005).ln();
+        assert!(
+            ts <= bound && ts > bound - std::f64::consts::PI / 3.0,
+            "{ts} vs {bound}"
+        );
+        // The crossing is interpolated: within the last sample outside and the next.
+        let j = (ts / dt).floor() as usize;
+        assert!((y[j] - 1.0).abs() > 0.005 && (y[j + 1] - 1.0).abs() <= 0.005);
+        // A negative step is measured as MATLAB does, by its sign.
+        let neg: Vec<f64> = y.iter().map(|v| -2.0 * v).collect();
+        let n = super::step_info(&neg, dt, -2.0, 0.005);
+        assert!((n.overshoot - info.overshoot).abs() < 1e-9);
+        assert!((n.settling_time.unwrap() - ts).abs() < 1e-9);
+        // Never settles if the last sample is outside; settled from the start if none is.
+        assert_eq!(
+            super::step_info(&[0.0, 0.5, 0.9], dt, 1.0, 0.005).settling_time,
+            None
+        );
+        assert_eq!(
+            super::step_info(&[1.0, 1.001], dt, 1.0, 0.005).settling_time,
+            Some(0.0)
+        );
+        // No overshoot for a response that stays short of the target.
+        assert_eq!(
+            super::step_info(&[0.0, 0.5, 0.99], dt, 1.0, 0.02).overshoot,
+            0.0
+        );
+    }
+
     use super::ChatterMonitor;
     use rand::{RngExt, SeedableRng};
 

@@ -26,7 +26,9 @@ use std::path::PathBuf;
 pub use config::{GpConfig, MAX_TICKS, PrecisionConfig, RobotConfig, Scenario, Target};
 pub use load::{DEFAULT_SCENARIO_NAME, Layer, LoadedScenario, parse_scenario, scenario_schema};
 pub use method::Method;
-pub use metrics::{ChatterMonitor, Chattering, FaultOutcome, RunMetrics, RunResult};
+pub use metrics::{
+    ChatterMonitor, Chattering, FaultOutcome, RunMetrics, RunResult, StepInfo, step_info,
+};
 pub use reference::scenario_reference_markdown;
 pub use runner::{
     DivergenceReason, NoObserver, Observer, ObserverMode, Observers, Outcome, Run, RunStart,

@@ -14,7 +14,7 @@ use std::time::Instant;
 use super::method::MethodParts;
 use super::metrics::{ChatterMonitor, DivergenceGuard, RunMetrics, RunResult};
 use super::{Method, RunSetup, ScenarioError};
-use crate::control::Control;
+use crate::control::{BeliefTiming, Control};
 use crate::estimation::{Estimate, Estimator, EstimatorInput};
 use crate::plant::Plant;
 use crate::precision::Calibration;
@@ -282,6 +282,10 @@ pub struct Simulation {
     applied: Vec<f64>,
     torques: Vec<f64>,
     free_energy: f64,
+    /// The belief before this tick's update, for a law that reads it (`controller.belief =
+    /// "previous"`).
+    previous_mu: Vec<f64>,
+    previous_mu_p: Vec<f64>,
     tick: u64,
     decided: bool,
 }
@@ -356,6 +360,8 @@ impl Simulation {
             applied: vec![0.0; n],
             torques: vec![0.0; n],
             free_energy: f64::NAN,
+            previous_mu: vec![0.0; n],
+            previous_mu_p: vec![0.0; n],
             tick: 0,
             decided: false,
         })
@@ -411,6 +417,20 @@ impl Simulation {
             self.readings.values.copy_from_slice(&r.values);
         }
         self.precisions.copy_from_slice(self.precision.precisions());
+        let previous = self.control.belief_timing() == BeliefTiming::Previous;
+        if previous {
+            let n = self.layout.n_joints();
+            if k == 0 {
+                // No update yet: the belief's initialisation, the first readings.
+                for i in 0..n {
+                    self.previous_mu[i] = self.readings.get(i).unwrap_or(0.0);
+                    self.previous_mu_p[i] = self.readings.get(n + i).unwrap_or(0.0);
+                }
+            } else {
+                self.previous_mu.copy_from_slice(self.estimator.mu());
+                self.previous_mu_p.copy_from_slice(self.estimator.mu_p());
+            }
+        }
         let estimate = self.estimator.update(&EstimatorInput {
             tick: k,
             readings: &self.readings,
@@ -420,9 +440,12 @@ impl Simulation {
         let finite = estimate.finite;
         let belief_energy = estimate.free_energy;
         let target = &self.targets[self.target].1;
-        let torques =
-            self.control
-                .step(self.estimator.mu(), self.estimator.mu_p(), target, self.dt);
+        let (mu, mu_p) = if previous {
+            (&self.previous_mu[..], &self.previous_mu_p[..])
+        } else {
+            (self.estimator.mu(), self.estimator.mu_p())
+        };
+        let torques = self.control.step(mu, mu_p, target, self.dt);
         self.torques.copy_from_slice(torques);
         if !finite {
             self.control.hold();

@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use super::{GpConfig, LoadedScenario, PrecisionConfig, Scenario, ScenarioError, runner};
+use super::{GpConfig, LoadedScenario, Method, PrecisionConfig, Scenario, ScenarioError, runner};
 use crate::arm::{ArmModel, EndEffector, Kinematics};
 use crate::fsio;
 use crate::gp::{self, GpError, GpModel};
@@ -190,6 +190,25 @@ impl RunSetup {
 
     pub fn scenario(&self) -> &Scenario {
         &self.loaded.scenario
+    }
+
+    /// Whether `method` can run this setup: a nominal precision of 0 (a channel left out) needs a
+    /// fixed-precision method (`no-ft`, `oracle`). Checked before any run.
+    pub fn check_method(&self, method: Method) -> Result<(), ScenarioError> {
+        if self.nominal_precisions().contains(&0.0)
+            && !matches!(method, Method::NoFt | Method::Oracle)
+        {
+            return Err(ScenarioError::Invalid {
+                path: self.loaded.path.clone(),
+                field: "precision.nominal".into(),
+                message: format!(
+                    "a 0 (a channel left out) needs method \"no-ft\" or \"oracle\"; method \
+                     \"{}\" learns or gates precisions relative to the nominal ones",
+                    method.info().name
+                ),
+            });
+        }
+        Ok(())
     }
 
     /// Nominal precision per channel: the scenario's `precision.nominal`, else 1 / sigma^2 of

@@ -71,6 +71,9 @@ pub fn run_table(
     calibration: Option<&Calibration>,
     progress: &(dyn Fn() + Sync),
 ) -> Result<Table, ScenarioError> {
+    for &m in methods {
+        setup.check_method(m)?;
+    }
     let jobs: Vec<(Method, u64)> = methods
         .iter()
         .flat_map(|&m| seeds.iter().map(move |&s| (m, s)))

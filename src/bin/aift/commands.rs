@@ -465,6 +465,9 @@ fn calibration_for(
     methods: &[Method],
     calib: Option<&PathBuf>,
 ) -> Result<Option<Arc<Calibration>>, Failure> {
+    for &m in methods {
+        setup.check_method(m).map_err(bad_input)?;
+    }
     let dir = cache_dir();
     let found =
         calibrate::calibration_for(setup, methods, calib.map(PathBuf::as_path), dir.as_deref())

@@ -223,11 +223,26 @@ pub struct PairEntry {
     pub faults: Vec<FaultSpec>,
 }
 
+/// How the reaching benchmark measures a task (docs/campaigns.md, "The healthy reaching
+/// benchmark").
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ReachingProtocol {
+    /// aift's: every joint (largest overshoot, settling of all joints into their bands, largest
+    /// final error), belief RMSE pooled at the same tick.
+    #[default]
+    Aift,
+    /// The authors' (`matlab/statistical_analysis.m`): MATLAB `stepinfo` overshoot and settling
+    /// time (0.5 % band) on one joint, mean final error over joints, and the mean over joints of
+    /// the RMS of q(i) - mu(i), mu(i) the belief before reading q(i).
+    Authors,
+}
+
 /// The healthy reaching benchmark.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ReachingConfig {
-    /// Random reaching tasks per arm.
+    /// Reaching tasks per arm.
     pub tasks: usize,
     /// Length of each task (s).
     pub duration: f64,
@@ -235,6 +250,18 @@ pub struct ReachingConfig {
     pub seed: u64,
     /// Healthy runs of the detector's calibration, per task.
     pub calibration_runs: usize,
+    /// Which metrics: `aift` (default) or `authors`.
+    pub protocol: ReachingProtocol,
+    /// The joint (1-based) whose step response the `authors` protocol measures.
+    pub step_joint: usize,
+    /// Targets uniform in [lo, hi] rad on every joint (the authors': [-1.57, 1.57]) instead of
+    /// the camera model's training box.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub target_range: Option<[f64; 2]>,
+    /// A file of targets, one per line (comma-separated radians, one per joint; `#` comments),
+    /// relative to the campaign file: the first `tasks` lines are the tasks of every arm.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub targets_file: Option<PathBuf>,
 }
 
 impl Default for ReachingConfig {
@@ -244,8 +271,75 @@ impl Default for ReachingConfig {
             duration: 6.0,
             seed: 1,
             calibration_runs: 10,
+            protocol: ReachingProtocol::Aift,
+            step_joint: 1,
+            target_range: None,
+            targets_file: None,
         }
     }
+}
+
+/// Most bytes of a reaching targets file.
+pub const MAX_TARGETS_FILE_BYTES: u64 = 16 << 20;
+
+/// Reads a reaching targets file: one target per non-empty line, comma-separated finite radians,
+/// as many on every line; `#` starts a comment. Returns the first `tasks` targets (the caller
+/// checks their length against each arm's joints). Errors name the file, the key
+/// (`reaching.targets_file`) and the line.
+pub fn read_reaching_targets(
+    file: &Path,
+    campaign: &Path,
+    tasks: usize,
+) -> Result<Vec<Vec<f64>>, ScenarioError> {
+    let bad = |message: String| ScenarioError::Invalid {
+        path: campaign.to_path_buf(),
+        field: "reaching.targets_file".into(),
+        message: format!("{}: {message}", file.display()),
+    };
+    let text = fsio::read_text(file, MAX_TARGETS_FILE_BYTES).map_err(|e| bad(e.to_string()))?;
+    let mut targets = Vec::new();
+    for (i, line) in text.lines().enumerate() {
+        let line = line.split('#').next().unwrap_or("").trim();
+        if line.is_empty() {
+            continue;
+        }
+        let values: Vec<&str> = line.split(',').map(str::trim).collect();
+        if let Some(first) = targets.first().map(Vec::len)
+            && values.len() != first
+        {
+            return Err(bad(format!(
+                "line {}: {} values; the first target has {first}",
+                i + 1,
+                values.len()
+            )));
+        }
+        if values.len() > 1000 {
+            return Err(bad(format!("line {}: more than 1000 joints", i + 1)));
+        }
+        let mut target = Vec::with_capacity(values.len());
+        for v in values {
+            match v.parse::<f64>() {
+                Ok(x) if x.is_finite() && x.abs() <= 1e6 => target.push(x),
+                _ => {
+                    return Err(bad(format!(
+                        "line {}: {v:?} is not a finite angle (|x| <= 1e6 rad)",
+                        i + 1
+                    )));
+                }
+            }
+        }
+        targets.push(target);
+        if targets.len() == tasks {
+            break;
+        }
+    }
+    if targets.len() < tasks {
+        return Err(bad(format!(
+            "holds {} targets; `reaching.tasks` is {tasks}",
+            targets.len()
+        )));
+    }
+    Ok(targets)
 }
 
 /// A campaign file.

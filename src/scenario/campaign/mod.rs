@@ -28,8 +28,8 @@ use super::{LoadedScenario, Method, RunSetup, ScenarioError};
 use crate::fsio;
 
 pub use config::{
-    ArmEntry, CampaignConfig, CampaignKind, GroupSizes, Onset, OnsetConfig, PairEntry,
-    ReachingConfig, VerdictConfig,
+    ArmEntry, CampaignConfig, CampaignKind, GroupSizes, MAX_TARGETS_FILE_BYTES, Onset, OnsetConfig,
+    PairEntry, ReachingConfig, ReachingProtocol, VerdictConfig, read_reaching_targets,
 };
 pub use grid::{Cell, expand};
 pub use merge::{check_records, merge};
@@ -63,6 +63,8 @@ pub struct Campaign {
     pub cells: Vec<Cell>,
     pub methods: Vec<Method>,
     pub fingerprint: String,
+    /// The reaching targets read from `reaching.targets_file`, if it names one.
+    pub reaching_targets: Option<Vec<Vec<f64>>>,
 }
 
 /// The bundled default campaign, embedded.
@@ -89,10 +91,69 @@ impl Campaign {
         overrides: &[String],
     ) -> Result<Self, ScenarioError> {
         let methods = validate(&config, path)?;
+        let reaching_targets = match &config.reaching {
+            Some(rc) => match &rc.targets_file {
+                Some(file) => {
+                    let base = path.parent().unwrap_or(Path::new("."));
+                    Some(read_reaching_targets(&base.join(file), path, rc.tasks)?)
+                }
+                None => None,
+            },
+            None => None,
+        };
         let arms = prepare_arms(&config, path, overrides)?;
+        if let (Some(targets), Some(rc)) = (&reaching_targets, &config.reaching) {
+            for (a, setup) in arms.iter().enumerate() {
+                let n = setup.layout.n_joints();
+                if targets[0].len() != n {
+                    return Err(invalid(
+                        path,
+                        "reaching.targets_file",
+                        format!(
+                            "{}: targets of {} joints; arm {} ({}) has {n}",
+                            rc.targets_file
+                                .as_deref()
+                                .unwrap_or(Path::new(""))
+                                .display(),
+                            targets[0].len(),
+                            a,
+                            config.arms[a].name
+                        ),
+                    ));
+                }
+            }
+        }
+        if let Some(rc) = &config.reaching {
+            for (a, setup) in arms.iter().enumerate() {
+                if rc.step_joint > setup.layout.n_joints() {
+                    return Err(invalid(
+                        path,
+                        "reaching.step_joint",
+                        format!(
+                            "{} is past the last joint of arm {} ({}: {} joints)",
+                            rc.step_joint,
+                            a,
+                            config.arms[a].name,
+                            setup.layout.n_joints()
+                        ),
+                    ));
+                }
+            }
+        }
+        for (a, setup) in arms.iter().enumerate() {
+            for &m in &methods {
+                setup.check_method(m).map_err(|e| {
+                    invalid(
+                        path,
+                        &format!("arms[{a}]"),
+                        format!("{} ({}): {e}", config.arms[a].name, m.info().name),
+                    )
+                })?;
+            }
+        }
         let cells = expand(&config, &config.onsets);
         check_cells(&config, path, &arms, &cells, &methods)?;
-        let fingerprint = campaign_fingerprint(&config, &arms);
+        let fingerprint = campaign_fingerprint(&config, &arms, reaching_targets.as_deref());
         Ok(Self {
             config,
             path: path.to_path_buf(),
@@ -100,6 +161,7 @@ impl Campaign {
             cells,
             methods,
             fingerprint,
+            reaching_targets,
         })
     }
 
@@ -115,6 +177,7 @@ impl Campaign {
             cells,
             methods,
             fingerprint: String::new(),
+            reaching_targets: None,
         }
     }
 
@@ -230,17 +293,38 @@ fn validate(config: &CampaignConfig, path: &Path) -> Result<Vec<Method>, Scenari
         None => config.method_list(),
     };
     check_grid(config, path, methods.len())?;
-    if let Some(r) = &config.reaching
-        && (r.tasks == 0
+    if let Some(r) = &config.reaching {
+        if r.tasks == 0
             || r.tasks > 100_000
             || !(r.duration.is_finite() && r.duration > 0.0 && r.duration <= 1e4)
-            || !(2..=10_000).contains(&r.calibration_runs))
-    {
-        return Err(bad(
-            "reaching",
-            "needs 1..=100000 tasks, a duration in (0, 1e4] s and 2..=10000 calibration runs"
-                .into(),
-        ));
+            || !(2..=10_000).contains(&r.calibration_runs)
+        {
+            return Err(bad(
+                "reaching",
+                "needs 1..=100000 tasks, a duration in (0, 1e4] s and 2..=10000 calibration runs"
+                    .into(),
+            ));
+        }
+        if r.step_joint == 0 {
+            return Err(bad(
+                "reaching.step_joint",
+                "joints count from 1 (1 is the first joint)".into(),
+            ));
+        }
+        if let Some([lo, hi]) = r.target_range
+            && !(lo.is_finite() && hi.is_finite() && lo < hi && lo.abs() <= 1e3 && hi.abs() <= 1e3)
+        {
+            return Err(bad(
+                "reaching.target_range",
+                format!("[{lo}, {hi}] must be finite, lo < hi, within +-1000 rad"),
+            ));
+        }
+        if r.target_range.is_some() && r.targets_file.is_some() {
+            return Err(bad(
+                "reaching.target_range",
+                "give `target_range` or `targets_file`, not both".into(),
+            ));
+        }
     }
     Ok(methods)
 }
@@ -560,7 +644,11 @@ pub fn config_digest(config: &CampaignConfig) -> String {
 
 /// A label of everything the campaign's results depend on: the campaign file, each arm's
 /// scenario as resolved, its URDF and its GP (FNV-1a 64; a label, not a security hash).
-fn campaign_fingerprint(config: &CampaignConfig, arms: &[RunSetup]) -> String {
+fn campaign_fingerprint(
+    config: &CampaignConfig,
+    arms: &[RunSetup],
+    reaching_targets: Option<&[Vec<f64>]>,
+) -> String {
     let mut hash: u64 = 0xcbf29ce484222325;
     let mut feed = |text: &str| {
         for b in text.bytes().chain(std::iter::once(0)) {
@@ -581,6 +669,9 @@ fn campaign_fingerprint(config: &CampaignConfig, arms: &[RunSetup]) -> String {
             feed(&urdf);
         }
         feed(&a.gp.to_json());
+    }
+    if let Some(t) = reaching_targets {
+        feed(&format!("{t:?}"));
     }
     format!("{hash:016x}")
 }

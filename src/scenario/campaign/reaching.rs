@@ -7,7 +7,7 @@ use rand::SeedableRng;
 use rand_distr::{Distribution, Uniform};
 use serde::{Deserialize, Serialize};
 
-use super::Campaign;
+use super::{Campaign, ReachingProtocol};
 use crate::scenario::calibrate;
 use crate::scenario::runner::{Observer, ObserverMode, Run, TickRecord};
 use crate::scenario::{Method, ScenarioError};
@@ -38,7 +38,8 @@ pub struct ReachingRun {
 }
 
 impl Campaign {
-    /// The reaching tasks: per arm, targets uniform in the arm's camera-model box (its GP's
+    /// The reaching tasks: per arm, the targets file's first `tasks` targets, or targets drawn
+    /// uniformly per joint in `target_range`, else in the arm's camera-model box (its GP's
     /// training box) clipped 10 % inside the joint limits.
     pub fn reaching_tasks(&self) -> Vec<ReachingTask> {
         let Some(rc) = &self.config.reaching else {
@@ -46,21 +47,34 @@ impl Campaign {
         };
         let mut tasks = Vec::new();
         for (a, setup) in self.arms.iter().enumerate() {
+            if let Some(targets) = &self.reaching_targets {
+                for (t, target) in targets.iter().enumerate() {
+                    tasks.push(ReachingTask {
+                        arm: a,
+                        task: t,
+                        target: target.clone(),
+                    });
+                }
+                continue;
+            }
             let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(rc.seed);
             rng.set_stream(a as u64);
-            let boxes: Vec<(f64, f64)> = setup
-                .gp
-                .training_box
-                .iter()
-                .zip(&setup.model.joints)
-                .map(|([lo, hi], j)| match j.limits {
-                    Some((llo, lhi)) => {
-                        let m = 0.1 * (lhi - llo);
-                        (lo.max(llo + m), hi.min(lhi - m))
-                    }
-                    None => (*lo, *hi),
-                })
-                .collect();
+            let boxes: Vec<(f64, f64)> = match rc.target_range {
+                Some([lo, hi]) => vec![(lo, hi); setup.layout.n_joints()],
+                None => setup
+                    .gp
+                    .training_box
+                    .iter()
+                    .zip(&setup.model.joints)
+                    .map(|([lo, hi], j)| match j.limits {
+                        Some((llo, lhi)) => {
+                            let m = 0.1 * (lhi - llo);
+                            (lo.max(llo + m), hi.min(lhi - m))
+                        }
+                        None => (*lo, *hi),
+                    })
+                    .collect(),
+            };
             for t in 0..rc.tasks {
                 let target = boxes
                     .iter()
@@ -83,6 +97,21 @@ impl Campaign {
     }
 }
 
+/// What the authors' protocol keeps of a run (`matlab/statistical_analysis.m`): their arrays hold
+/// the initial state and belief as sample 1, then one sample per tick, the state q(i) at the
+/// tick's start beside mu(i), the belief before the tick's readings.
+struct AuthorsSeries {
+    joint: usize,
+    /// q of the measured joint, sample by sample (sample 1 the initial state).
+    q: Vec<f64>,
+    /// Per joint, the sum of (q(i) - mu(i))^2 and the number of samples.
+    lagged_sq: Vec<f64>,
+    samples: u64,
+    /// The belief after the last tick's update (mu(i + 1) for the next sample).
+    last_mu: Vec<f64>,
+    final_q: Vec<f64>,
+}
+
 /// Records what the reaching metrics need.
 struct ReachingObserver {
     start: Vec<f64>,
@@ -94,11 +123,32 @@ struct ReachingObserver {
     last_outside: Option<u64>,
     last_tick: u64,
     band: Vec<f64>,
+    authors: Option<AuthorsSeries>,
 }
 
 impl Observer for ReachingObserver {
     fn iter(&mut self, r: &TickRecord<'_>) {
         self.last_tick = r.tick;
+        if let Some(a) = &mut self.authors {
+            let n = self.target.len();
+            if r.tick == 0 {
+                // Sample 1: the initial state and the belief's initialisation (the first
+                // readings); their script starts both at q(:,1), a zero residual.
+                a.q.push(r.q[a.joint]);
+                for j in 0..n {
+                    a.last_mu[j] = r.readings.get(j).unwrap_or(0.0);
+                }
+                a.samples += 1;
+            }
+            a.q.push(r.q[a.joint]);
+            for j in 0..n {
+                let e = r.q[j] - a.last_mu[j];
+                a.lagged_sq[j] += e * e;
+            }
+            a.samples += 1;
+            a.last_mu.copy_from_slice(r.mu);
+            a.final_q.copy_from_slice(r.q);
+        }
         for j in 0..self.target.len() {
             let e = r.mu[j] - r.q[j];
             self.sq += e * e;
@@ -149,11 +199,13 @@ pub(super) fn run_reaching(
         .map(|(t, s)| 0.005 * (t - s).abs().max(0.01 * largest).max(1e-4))
         .collect();
     let dt = sc.dt;
+    let ticks = sc.ticks().min(crate::scenario::MAX_TICKS);
     let calibration = if campaign.methods.iter().any(|m| m.needs_detector()) {
         Some(calibrate::cached_calibration(&setup, rc.calibration_runs, cache)?.0)
     } else {
         None
     };
+    let n = start.len();
     let mut out = Vec::new();
     for &m in &campaign.methods {
         let mut obs = ReachingObserver {
@@ -166,28 +218,87 @@ pub(super) fn run_reaching(
             last_outside: None,
             last_tick: 0,
             band: band.clone(),
+            authors: (rc.protocol == ReachingProtocol::Authors).then(|| AuthorsSeries {
+                joint: rc.step_joint - 1,
+                q: Vec::with_capacity(ticks as usize + 1),
+                lagged_sq: vec![0.0; n],
+                samples: 0,
+                last_mu: vec![0.0; n],
+                final_q: start.clone(),
+            }),
         };
         let r = Run::new(&setup, m)
             .seed(1)
             .calibration(calibration.as_ref())
             .observe(&mut obs, ObserverMode::Always)
             .execute()?;
-        let settling_time = match obs.last_outside {
-            None => Some(0.0),
-            Some(k) if k >= obs.last_tick => None,
-            Some(k) => Some((k + 1) as f64 * obs.dt),
+        let run = match &obs.authors {
+            None => ReachingRun {
+                job,
+                arm: task.arm,
+                task: task.task,
+                method: m,
+                belief_rmse: (obs.sq / obs.count.max(1) as f64).sqrt(),
+                overshoot: obs.overshoot.max(0.0),
+                settling_time: match obs.last_outside {
+                    None => Some(0.0),
+                    Some(k) if k >= obs.last_tick => None,
+                    Some(k) => Some((k + 1) as f64 * obs.dt),
+                },
+                steady_state_error: r.max_final_error,
+                false_alarms: r.false_alarms,
+            },
+            Some(a) => {
+                let measures = authors_measures(a, &task.target, &start, dt);
+                ReachingRun {
+                    job,
+                    arm: task.arm,
+                    task: task.task,
+                    method: m,
+                    belief_rmse: measures.belief_rmse,
+                    overshoot: measures.overshoot,
+                    settling_time: measures.settling_time,
+                    steady_state_error: measures.steady_state_error,
+                    false_alarms: r.false_alarms,
+                }
+            }
         };
-        out.push(ReachingRun {
-            job,
-            arm: task.arm,
-            task: task.task,
-            method: m,
-            belief_rmse: (obs.sq / obs.count.max(1) as f64).sqrt(),
-            overshoot: obs.overshoot.max(0.0),
-            settling_time,
-            steady_state_error: r.max_final_error,
-            false_alarms: r.false_alarms,
-        });
+        out.push(run);
     }
     Ok(out)
+}
+
+/// The authors' four measures of one task.
+struct AuthorsMeasures {
+    overshoot: f64,
+    settling_time: Option<f64>,
+    steady_state_error: f64,
+    belief_rmse: f64,
+}
+
+/// `stepinfo(q(j,:) - q(j,1), time_vec, mu_d(j) - q(j,1), 'SettlingTimeThreshold', 0.005)` on the
+/// measured joint, `sum(abs(mu_d - q(:,end)))/n` and the mean over joints of
+/// `sqrt(mean((q(j,:) - mu(j,:)).^2))` (matlab/statistical_analysis.m).
+fn authors_measures(a: &AuthorsSeries, target: &[f64], start: &[f64], dt: f64) -> AuthorsMeasures {
+    let j = a.joint;
+    let q0 = a.q.first().copied().unwrap_or(start[j]);
+    let y: Vec<f64> = a.q.iter().map(|v| v - q0).collect();
+    let info = crate::scenario::step_info(&y, dt, target[j] - q0, 0.005);
+    let n = target.len() as f64;
+    AuthorsMeasures {
+        overshoot: info.overshoot,
+        settling_time: info.settling_time,
+        steady_state_error: target
+            .iter()
+            .zip(&a.final_q)
+            .map(|(t, q)| (t - q).abs())
+            .sum::<f64>()
+            / n,
+        belief_rmse: a
+            .lagged_sq
+            .iter()
+            .map(|s| (s / a.samples.max(1) as f64).sqrt())
+            .sum::<f64>()
+            / n,
+    }
 }
