@@ -107,6 +107,7 @@ fn main() {
                 ("rapier", _) => "(rapier's)",
                 (_, Integrator::Euler) => "euler",
                 (_, Integrator::Rk4) => "rk4",
+                (_, Integrator::ExplicitEuler) => "explicit-euler",
             };
             let default = if engine == "rapier" && it == 2 {
                 " (default)"

@@ -38,6 +38,11 @@ pub struct PidGains {
     /// +integral_limit.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub integral_upper: Option<Vec<f64>>,
+    /// The integral torque per joint at the first tick (N m), within the clamp. Absent: 0. The
+    /// authors' benchmark script never resets its integral between tasks: chaining this
+    /// reproduces it (tests/authors_reference.rs).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub integral_initial: Option<Vec<f64>>,
 }
 
 impl PidGains {
@@ -54,6 +59,7 @@ impl PidGains {
             kd_matrix: None,
             integral_lower: None,
             integral_upper: None,
+            integral_initial: None,
         }
     }
 
@@ -68,6 +74,7 @@ impl PidGains {
             kd_matrix: None,
             integral_lower: None,
             integral_upper: None,
+            integral_initial: None,
         }
     }
 
@@ -159,6 +166,23 @@ impl PidGains {
                 ));
             }
         }
+        if let Some(v) = &self.integral_initial {
+            if v.len() != n_joints {
+                return Err(crate::SettingError::new(
+                    "integral_initial",
+                    format!("has {} entries; the arm has {n_joints} joints", v.len()),
+                ));
+            }
+            for (i, x) in v.iter().enumerate() {
+                let (lo, hi) = self.integral_clamp(i);
+                if !(x.is_finite() && *x >= lo && *x <= hi) {
+                    return Err(crate::SettingError::new(
+                        "integral_initial",
+                        format!("joint {i}: {x} must be finite and within the clamp [{lo}, {hi}]"),
+                    ));
+                }
+            }
+        }
         for i in 0..n_joints {
             let (lo, hi) = self.integral_clamp(i);
             if lo > hi || lo == f64::INFINITY || hi == f64::NEG_INFINITY {
@@ -187,10 +211,11 @@ pub struct Pid {
 impl Pid {
     pub fn new(gains: PidGains) -> Self {
         let n = gains.kp.len();
-        Self {
-            gains,
-            integral: vec![0.0; n],
-        }
+        let integral = gains
+            .integral_initial
+            .clone()
+            .unwrap_or_else(|| vec![0.0; n]);
+        Self { gains, integral }
     }
 
     pub fn gains(&self) -> &PidGains {

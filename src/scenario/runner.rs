@@ -399,6 +399,11 @@ impl Simulation {
         &self.torques
     }
 
+    /// The control law's integral torque per joint after the last [`Self::decide`].
+    pub fn integral(&self) -> &[f64] {
+        self.control.integral()
+    }
+
     /// Senses, estimates, controls and learns for the current tick. `readings`, when given,
     /// replace what the sensors read (one value or `None` per channel).
     ///

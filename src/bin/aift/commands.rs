@@ -194,7 +194,7 @@ fn campaign(args: CampaignArgs) -> Result<(), Failure> {
     staged
         .commit()
         .map_err(|e| report_failure(ReportError::File(e)))?;
-    if shard == Shard::WHOLE {
+    if shard == Shard::WHOLE && !campaign.cells.is_empty() {
         print_method_table(args.json, &campaign, &records.runs);
     }
     say!(
