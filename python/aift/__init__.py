@@ -182,11 +182,14 @@ def table(scenario=None, methods: Optional[Sequence[str]] = None, seeds: int = 2
 
 
 def campaign(path=None, *, seeds: Optional[int] = None, methods: Optional[Sequence[str]] = None,
-             set: Iterable[str] = (), shard: Optional[str] = None, out=None, force: bool = False) -> Rows:
+             set: Iterable[str] = (), shard: Optional[str] = None, out=None, force: bool = False,
+             fresh: bool = False) -> Rows:
     """Runs a campaign file (default: the bundled one): campaign.json's document, with its
-    per-cell rows (``doc["cells"]``) as rows."""
+    per-cell rows (``doc["cells"]``) as rows. With ``out``, each finished job is journaled beside
+    the folder: an interrupted call is resumed by calling again with the same arguments
+    (``fresh=True`` starts from nothing)."""
     doc = json.loads(_aift.run_campaign(_path(path), seeds, _methods(methods),
-                                        list(set), shard, _path(out), force))
+                                        list(set), shard, _path(out), force, fresh))
     return Rows(doc, "cells")
 
 

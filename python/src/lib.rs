@@ -525,9 +525,11 @@ fn parse_methods(methods: Option<Vec<String>>) -> PyResult<Vec<Method>> {
 }
 
 /// Runs a campaign file (default: the bundled one); returns campaign.json's text. `out` writes
-/// the campaign folder (or, for a shard, its records for `aift merge`).
+/// the campaign folder (or, for a shard, its records for `aift merge`), journaling each finished
+/// job beside it as `aift campaign` does: an interrupted call (Ctrl-C, a killed process) is
+/// resumed by calling it again with the same arguments; `fresh` discards such a journal.
 #[pyfunction]
-#[pyo3(signature = (path = None, seeds = None, methods = None, set = Vec::new(), shard = None, out = None, force = false))]
+#[pyo3(signature = (path = None, seeds = None, methods = None, set = Vec::new(), shard = None, out = None, force = false, fresh = false))]
 #[allow(clippy::too_many_arguments)]
 fn run_campaign(
     py: Python<'_>,
@@ -538,6 +540,7 @@ fn run_campaign(
     shard: Option<&str>,
     out: Option<PathBuf>,
     force: bool,
+    fresh: bool,
 ) -> PyResult<String> {
     let path = match path {
         Some(p) => p,
@@ -573,10 +576,28 @@ fn run_campaign(
         None => None,
     };
     let cache = calibrate::default_cache_dir();
-    let (campaign, records) = interruptible(py, || {
+    let mode = if fresh {
+        campaign::JournalMode::Fresh
+    } else {
+        campaign::JournalMode::Resume
+    };
+    let (campaign, records, journal) = interruptible(py, || {
         let campaign = Campaign::from_config(config, &path, &set)?;
-        let records = campaign::run_campaign(&campaign, shard, cache.as_deref(), &|_, _| {})?;
-        Ok::<_, ScenarioError>((campaign, records))
+        let journal = match &out {
+            Some(dir) => Some(
+                campaign::Journal::open(&campaign::Journal::path_for(dir), &campaign, shard, mode)?
+                    .0,
+            ),
+            None => None,
+        };
+        let records = campaign::run_campaign_journaled(
+            &campaign,
+            shard,
+            cache.as_deref(),
+            &|_, _| {},
+            journal.as_ref(),
+        )?;
+        Ok::<_, ScenarioError>((campaign, records, journal))
     })?
     .map_err(|e| scenario_err(e, &[]))?;
     if let Some(staged) = staged {
@@ -587,6 +608,9 @@ fn run_campaign(
             campaign_files::write_shard(staged.path(), &records).map_err(report_err)?;
         }
         staged.commit().map_err(file_err)?;
+    }
+    if let Some(j) = journal {
+        j.remove().map_err(file_err)?;
     }
     let (cells, methods) = campaign::summarise(&campaign, &records.runs);
     Ok(campaign_files::campaign_json(&campaign, &records, &cells, &methods).to_string())

@@ -92,10 +92,14 @@ def test_ctrl_c_stops_tables_campaigns_and_calibrations(tmp_path, tiny_campaign,
                         .replace("seeds = 1", "seeds = 4").replace("duration = 9.0", "duration = 300.0"))
     interrupted(lambda: aift.campaign(campaign, out=tmp_path / "c"))
     assert not (tmp_path / "c").exists()
+    # The campaign's journal stays for a later call to resume, holding no stopped run: only its
+    # header (no job of 300 s finished).
+    journal = tmp_path / ".c.aift-journal"
+    assert len(journal.read_text().splitlines()) == 1
     # Runs go on normally afterwards.
     r = aift.run(long.copy().set("duration", 0.1), method="no-ft")
     assert r.summary["outcome"] == "completed"
-    assert [p.name for p in tmp_path.iterdir()] == ["c.toml"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".c.aift-journal", "c.toml"]
 
 
 def test_outputs_that_are_fifos_are_refused_and_left_alone(tmp_path):

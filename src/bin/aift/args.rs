@@ -96,6 +96,13 @@ pub struct CampaignArgs {
     /// Print one JSON document on stdout (campaign.json; for a shard, what it ran and wrote); everything else goes to stderr.
     #[arg(long)]
     pub json: bool,
+    /// Require a journal of an interrupted run of this same campaign and shard to resume from
+    /// (exit 2 if there is none). Without it, a matching journal is resumed anyway.
+    #[arg(long, conflicts_with = "fresh")]
+    pub resume: bool,
+    /// Discard the journal of an interrupted run and start from nothing.
+    #[arg(long)]
+    pub fresh: bool,
 }
 
 #[derive(Debug, Args)]

@@ -145,7 +145,7 @@ fn default_campaign_path() -> PathBuf {
 }
 
 fn campaign(args: CampaignArgs) -> Result<(), Failure> {
-    use aift::scenario::campaign::run_campaign;
+    use aift::scenario::campaign::{Journal, JournalMode, JournalStart, run_campaign_journaled};
     let start = std::time::Instant::now();
     let path = args.campaign.clone().unwrap_or_else(default_campaign_path);
     if args.campaign.is_none() && !path.is_file() {
@@ -176,14 +176,52 @@ fn campaign(args: CampaignArgs) -> Result<(), Failure> {
     // scenario, so shards with other overrides do not merge.
     let campaign = Campaign::from_config(config, &path, &args.set).map_err(bad_input)?;
     describe_campaign(&campaign, shard);
+    // Every finished job goes into a journal beside the output folder; a killed run's journal
+    // is resumed by running the same command again.
+    let journal_path = Journal::path_for(&dir);
+    let mode = if args.resume {
+        JournalMode::Require
+    } else if args.fresh {
+        JournalMode::Fresh
+    } else {
+        JournalMode::Resume
+    };
+    let (journal, started) = Journal::open(&journal_path, &campaign, shard, mode).map_err(|e| {
+        if args.resume {
+            bad_input(anyhow!("--resume: {e}"))
+        } else {
+            file_failure(e)
+        }
+    })?;
+    match &started {
+        JournalStart::New => {}
+        JournalStart::Resumed { jobs, seconds } => {
+            let all = campaign.jobs().len() + campaign.reaching_tasks().len();
+            let mine = (0..all).filter(|j| shard.contains(*j)).count();
+            errln!(
+                "resuming from {}: {jobs} of {mine} jobs already done ({seconds:.1} s of work kept)",
+                journal_path.display()
+            )
+        }
+        JournalStart::Replaced(reason) => errln!(
+            "starting afresh: the journal at {} was {reason}",
+            journal_path.display()
+        ),
+    }
     let bar = progress_bar();
     let progress = |done: usize, total: usize| {
         bar.set_length(total as u64);
         bar.set_position(done as u64);
     };
     let dir_cache = cache_dir();
-    let records =
-        run_campaign(&campaign, shard, dir_cache.as_deref(), &progress).map_err(bad_input)?;
+    let records = run_campaign_journaled(
+        &campaign,
+        shard,
+        dir_cache.as_deref(),
+        &progress,
+        Some(&journal),
+    )
+    .map_err(bad_input)?;
     bar.finish_and_clear();
     if shard == Shard::WHOLE {
         report::campaign_files::write_campaign(staged.path(), &campaign, &records)
@@ -194,6 +232,9 @@ fn campaign(args: CampaignArgs) -> Result<(), Failure> {
     staged
         .commit()
         .map_err(|e| report_failure(ReportError::File(e)))?;
+    if let Err(e) = journal.remove() {
+        errln!("warning: {e}");
+    }
     if shard == Shard::WHOLE && !campaign.cells.is_empty() {
         print_method_table(args.json, &campaign, &records.runs);
     }

@@ -17,6 +17,7 @@
 
 mod config;
 mod grid;
+mod journal;
 mod merge;
 mod reaching;
 mod run;
@@ -32,9 +33,12 @@ pub use config::{
     PairEntry, ReachingConfig, ReachingProtocol, VerdictConfig, read_reaching_targets,
 };
 pub use grid::{Cell, expand};
+pub use journal::{JOURNAL_FORMAT, Journal, JournalMode, JournalStart, MAX_JOURNAL_BYTES};
 pub use merge::{check_records, merge};
 pub use reaching::{ReachingRun, ReachingTask};
-pub use run::{CampaignRecords, CampaignRun, Shard, Verdict, run_campaign, run_seed};
+pub use run::{
+    CampaignRecords, CampaignRun, Shard, Verdict, run_campaign, run_campaign_journaled, run_seed,
+};
 pub use summary::{CellSummary, MethodSummary, summarise, worse_than_no_ft};
 
 /// Most cells a campaign may expand to, and most jobs (cells x methods x seeds, and reaching

@@ -303,52 +303,107 @@ pub fn run_campaign(
     cache: Option<&Path>,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<CampaignRecords, ScenarioError> {
+    run_campaign_journaled(campaign, shard, cache, progress, None)
+}
+
+/// [`run_campaign`] with a journal: the jobs it holds are taken from it, not run again, and each
+/// job run is written to it as it finishes (a run stopped by [`crate::scenario::stop_all_runs`]
+/// is not). The records are the same as an uninterrupted run's.
+pub fn run_campaign_journaled(
+    campaign: &Campaign,
+    shard: Shard,
+    cache: Option<&Path>,
+    progress: &(dyn Fn(usize, usize) + Sync),
+    journal: Option<&super::Journal>,
+) -> Result<CampaignRecords, ScenarioError> {
     let all = campaign.jobs();
-    let jobs: Vec<(usize, usize, Method, usize)> = all
+    let in_shard: Vec<(usize, usize, Method, usize)> = all
         .iter()
         .enumerate()
         .filter(|(j, _)| shard.contains(*j))
         .map(|(j, &(c, m, s))| (j, c, m, s))
         .collect();
     let reaching = campaign.reaching_tasks();
-    let reaching_jobs: Vec<usize> = (0..reaching.len())
+    let reaching_in_shard: Vec<usize> = (0..reaching.len())
         .filter(|i| shard.contains(all.len() + i))
         .collect();
-    let total = jobs.len() + reaching_jobs.len();
+    let total = in_shard.len() + reaching_in_shard.len();
+    let kept_run = |j: usize| journal.and_then(|w| w.run(j));
+    let kept_reaching = |j: usize| journal.and_then(|w| w.reaching(j));
+    let jobs: Vec<_> = in_shard
+        .iter()
+        .copied()
+        .filter(|&(j, ..)| kept_run(j).is_none())
+        .collect();
+    let reaching_jobs: Vec<usize> = reaching_in_shard
+        .iter()
+        .copied()
+        .filter(|&i| kept_reaching(all.len() + i).is_none())
+        .collect();
     let cals = calibrations(campaign, &jobs, cache)?;
-    let done = std::sync::atomic::AtomicUsize::new(0);
+    let done = std::sync::atomic::AtomicUsize::new(total - jobs.len() - reaching_jobs.len());
+    let stopped = || crate::scenario::runner::all_runs_stopping();
     let results: Vec<Result<CampaignRun, ScenarioError>> = jobs
         .par_iter()
         .map(|&(j, c, m, s)| {
+            let started = std::time::Instant::now();
             let setup = campaign.cell_setup(&campaign.cells[c]);
             let cal = if m.needs_detector() {
                 cals.get(&crate::scenario::fingerprint(&setup))
             } else {
                 None
             };
-            let r = run_job(campaign, &setup, j, c, m, s, cal);
+            let r = run_job(campaign, &setup, j, c, m, s, cal)?;
+            if let Some(w) = journal
+                && r.outcome != "stopped"
+                && !stopped()
+            {
+                w.record_run(&r, started.elapsed().as_secs_f64())?;
+            }
             progress(
                 done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1,
                 total,
             );
-            r
+            Ok(r)
         })
         .collect();
-    let runs = results.into_iter().collect::<Result<Vec<_>, _>>()?;
-    let reach: Vec<Result<Vec<ReachingRun>, ScenarioError>> = reaching_jobs
+    let mut runs: BTreeMap<usize, CampaignRun> = BTreeMap::new();
+    for r in results {
+        let r = r?;
+        runs.insert(r.job, r);
+    }
+    for &(j, ..) in &in_shard {
+        if let Some(r) = kept_run(j) {
+            runs.insert(j, r.clone());
+        }
+    }
+    let reach: Vec<Result<(usize, Vec<ReachingRun>), ScenarioError>> = reaching_jobs
         .par_iter()
         .map(|&i| {
-            let r = run_reaching(campaign, &reaching[i], all.len() + i, cache);
+            let started = std::time::Instant::now();
+            let job = all.len() + i;
+            let r = run_reaching(campaign, &reaching[i], job, cache)?;
+            if let Some(w) = journal
+                && !stopped()
+            {
+                w.record_reaching(job, &r, started.elapsed().as_secs_f64())?;
+            }
             progress(
                 done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1,
                 total,
             );
-            r
+            Ok((job, r))
         })
         .collect();
-    let mut reaching_runs = Vec::new();
+    let mut reaching_runs: BTreeMap<usize, Vec<ReachingRun>> = BTreeMap::new();
     for r in reach {
-        reaching_runs.extend(r?);
+        let (job, r) = r?;
+        reaching_runs.insert(job, r);
+    }
+    for &i in &reaching_in_shard {
+        if let Some(r) = kept_reaching(all.len() + i) {
+            reaching_runs.insert(all.len() + i, r.clone());
+        }
     }
     Ok(CampaignRecords {
         format_version: CAMPAIGN_FORMAT,
@@ -359,8 +414,8 @@ pub fn run_campaign(
         shard,
         jobs: all.len() + reaching.len(),
         conditions: campaign.arms.iter().map(RunSetup::conditions).collect(),
-        runs,
-        reaching: reaching_runs,
+        runs: runs.into_values().collect(),
+        reaching: reaching_runs.into_values().flatten().collect(),
     })
 }
 
