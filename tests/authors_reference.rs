@@ -347,6 +347,17 @@ fn bad_compatibility_settings_are_refused_naming_the_file_and_the_key() {
         "gn.toml",
         "prediction",
     );
+    write(
+        "upper.toml",
+        "integral_upper = [45.0, 4.5]",
+        "integral_upper = [-inf, 4.5]",
+    );
+    refused(
+        &["run", "upper.toml", "--out", "out"],
+        &dir,
+        "upper.toml",
+        "integral_upper",
+    );
     write("delay.toml", "delay_ticks = 1", "delay_ticks = 5000");
     refused(
         &["run", "delay.toml", "--out", "out"],
@@ -428,6 +439,36 @@ fn bad_compatibility_settings_are_refused_naming_the_file_and_the_key() {
         &dir,
         "c.toml",
         "reaching.target_range",
+    );
+    std::fs::write(
+        dir.join("c.toml"),
+        campaign("two.csv", "target_range = [-1.0, 0.0, 1.0]\n"),
+    )
+    .unwrap();
+    refused(
+        &["campaign", "c.toml", "--out", "out"],
+        &dir,
+        "c.toml",
+        "reaching.target_range",
+    );
+    // A target outside a joint's limits (the Panda's joint 7 stops at 2.9 rad).
+    std::fs::write(dir.join("panda.csv"), "0, 0, 0, -1.5, 0, 1.5, 5.0\n").unwrap();
+    std::fs::write(
+        dir.join("p.toml"),
+        format!(
+            "name = \"p\"\nseeds = 1\nmethods = [\"no-ft\"]\nchannels = []\nkinds = []\n\
+             healthy = false\n[[arms]]\nname = \"panda\"\nscenario = {:?}\n[reaching]\n\
+             targets_file = \"panda.csv\"\ntasks = 1\nduration = 1.0\n",
+            root().join("assets/scenarios/panda_healthy.toml")
+        ),
+    )
+    .unwrap();
+    let out = common::aift_in(&["campaign", "p.toml", "--out", "out"], &dir);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("reaching.targets_file") && err.contains("joint 7") && err.contains("limits"),
+        "{err}"
     );
     // And the same campaign, well formed, runs.
     std::fs::write(dir.join("c.toml"), campaign("two.csv", "")).unwrap();

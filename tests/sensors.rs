@@ -431,3 +431,49 @@ fn overlapping_faults_apply_in_order_and_end_separately() {
         assert!((f2 - expected2).abs() < 1e-12, "enc2 tick {k}");
     }
 }
+
+/// An end effector inside another body's collision shape (a link folded back into its parent's
+/// hull) is not hidden by that shape: seen from the side, the line of sight enters link 1's box,
+/// which holds the tip.
+#[test]
+fn a_shape_that_contains_the_end_effector_does_not_hide_it() {
+    let urdf = r#"<robot name="folded">
+  <link name="base"/>
+  <joint name="j1" type="revolute">
+    <parent link="base"/><child link="l1"/><axis xyz="0 1 0"/>
+    <limit lower="-1" upper="1" effort="10" velocity="1"/>
+  </joint>
+  <link name="l1">
+    <inertial><origin xyz="0 0 0.5"/><mass value="1"/><inertia ixx="0.1" iyy="0.1" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial>
+    <collision><origin xyz="0 0 0.5"/><geometry><box size="0.2 0.2 1.0"/></geometry></collision>
+  </link>
+  <joint name="j2" type="revolute">
+    <parent link="l1"/><child link="l2"/><origin xyz="0 0 1.0" rpy="3.141592653589793 0 0"/><axis xyz="0 0 1"/>
+    <limit lower="-1" upper="1" effort="10" velocity="1"/>
+  </joint>
+  <link name="l2">
+    <inertial><origin xyz="0 0 0.15"/><mass value="0.5"/><inertia ixx="0.01" iyy="0.01" izz="0.001" ixy="0" ixz="0" iyz="0"/></inertial>
+    <collision><origin xyz="0 0 0.15"/><geometry><cylinder radius="0.02" length="0.3"/></geometry></collision>
+  </link>
+  <joint name="tip" type="fixed"><parent link="l2"/><child link="ee"/><origin xyz="0 0 0.3"/></joint>
+  <link name="ee"/>
+</robot>"#;
+    let model = std::sync::Arc::new(
+        aift::arm::parse_urdf(urdf, std::path::Path::new("folded.urdf")).unwrap(),
+    );
+    let ee = aift::arm::EndEffector::new(&model, "ee", [0.0; 3]).unwrap();
+    let mut arm = aift::arm::Kinematics::new(model.clone());
+    arm.set(&[0.0, 0.3]);
+    // The tip is at z = 0.7, inside link 1's box (0 <= z <= 1, |x|, |y| <= 0.1).
+    let p = aift::plant::ArmPose::ee_position(&arm, &ee);
+    assert!((p.z - 0.7).abs() < 1e-12 && p.x.abs() < 1e-12, "{p}");
+    let side = Camera::new(CameraConfig {
+        position: [3.0, 0.0, 0.7],
+        look_at: [0.0, 0.0, 0.7],
+        up: [0.0, 0.0, 1.0],
+        ..CameraConfig::default()
+    });
+    let mut image = [0.0; 2];
+    assert!(side.observe(&arm, &ee, &mut image).is_ok());
+    // Shapes between the camera and the tip still hide it (an_occluded_end_effector_reports_missing).
+}

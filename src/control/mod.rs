@@ -170,11 +170,13 @@ impl Control {
         self.pid.integral()
     }
 
-    /// Zero torques (after a refused belief update), and none pending.
+    /// Drops the output of this tick's step (after a refused belief update: it came from a
+    /// belief that failed): without a delay the torques applied now are zero; with one, the
+    /// output queued this tick is, and what is applied now (computed d ticks ago) stands.
     pub fn hold(&mut self) {
-        self.torques.fill(0.0);
-        for p in &mut self.pending {
-            p.fill(0.0);
+        match self.pending.back_mut() {
+            Some(newest) => newest.fill(0.0),
+            None => self.torques.fill(0.0),
         }
     }
 }
@@ -196,11 +198,21 @@ mod tests {
             .map(|k| c.step(&[0.0], &[0.0], &[k as f64 + 1.0], 1e-3)[0])
             .collect();
         assert_eq!(applied, [0.0, 0.0, 1.0, 2.0, 3.0]);
-        // A hold clears what is pending.
+        // A hold drops this tick's output only: it is applied as zero two ticks later, the
+        // outputs queued before it as they were.
         c.hold();
-        assert_eq!(c.step(&[0.0], &[0.0], &[9.0], 1e-3)[0], 0.0);
+        assert_eq!(c.torques()[0], 3.0);
+        assert_eq!(c.step(&[0.0], &[0.0], &[9.0], 1e-3)[0], 4.0);
         assert_eq!(c.step(&[0.0], &[0.0], &[9.0], 1e-3)[0], 0.0);
         assert_eq!(c.step(&[0.0], &[0.0], &[9.0], 1e-3)[0], 9.0);
+        // Without a delay, the torques of the tick are zero.
+        let mut c = Control::new(&ControlConfig {
+            delay_ticks: 0,
+            ..config.clone()
+        });
+        c.step(&[0.0], &[0.0], &[5.0], 1e-3);
+        c.hold();
+        assert_eq!(c.torques()[0], 0.0);
         let too_long = ControlConfig {
             delay_ticks: MAX_DELAY_TICKS + 1,
             ..config

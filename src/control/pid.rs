@@ -185,11 +185,24 @@ impl PidGains {
         }
         for i in 0..n_joints {
             let (lo, hi) = self.integral_clamp(i);
-            if lo > hi || lo == f64::INFINITY || hi == f64::NEG_INFINITY {
-                let name = if self.integral_lower.is_some() {
-                    "integral_lower"
-                } else {
-                    "integral_upper"
+            if lo == f64::INFINITY {
+                return Err(crate::SettingError::new(
+                    "integral_lower",
+                    format!("joint {i}: inf leaves no room below; -inf is no lower clamp"),
+                ));
+            }
+            if hi == f64::NEG_INFINITY {
+                return Err(crate::SettingError::new(
+                    "integral_upper",
+                    format!("joint {i}: -inf leaves no room above; inf is no upper clamp"),
+                ));
+            }
+            if lo > hi {
+                // Blame the side given explicitly (the other is +-integral_limit).
+                let name = match (&self.integral_lower, &self.integral_upper) {
+                    (Some(_), None) => "integral_lower",
+                    (None, Some(_)) => "integral_upper",
+                    _ => "integral_lower",
                 };
                 return Err(crate::SettingError::new(
                     name,

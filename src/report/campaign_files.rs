@@ -313,7 +313,7 @@ fn markdown(
 fn reaching_rows(
     campaign: &Campaign,
     records: &CampaignRecords,
-) -> Vec<(usize, Method, [f64; 5], usize)> {
+) -> Vec<(usize, Method, [f64; 5], usize, usize)> {
     let mut rows = Vec::new();
     for a in 0..campaign.config.arms.len() {
         for &m in &campaign.methods {
@@ -358,6 +358,7 @@ fn reaching_rows(
                     rs.iter().map(|r| r.false_alarms).sum::<usize>() as f64,
                 ],
                 rs.len() - settled.len(),
+                rs.iter().filter(|r| r.outcome != "completed").count(),
             ));
         }
     }
@@ -385,7 +386,7 @@ pub(crate) fn reaching_heading(campaign: &Campaign) -> (String, String) {
                 rc.tasks, rc.duration
             ),
             format!(
-                "Means over the tasks, as the authors' matlab/statistical_analysis.m defines them: belief RMSE = the mean over joints of the RMS of q(i) - mu(i), mu(i) the belief before reading q(i) (rad); overshoot and settling time of joint {} by MATLAB's stepinfo (0.5 % band; a task that never settles counts as its length, as their script does; the count is given apart); steady-state error = the mean over joints of |mu_d - q(T)| (rad); false alarms (total).",
+                "Means over the tasks, as the authors' matlab/statistical_analysis.m defines them: belief RMSE = the mean over joints of the RMS of q(i) - mu(i), mu(i) the belief before reading q(i) (rad); overshoot and settling time of joint {} by MATLAB's stepinfo (0.5 % band; a task that never settles counts as its length, as their script means to; the count is given apart); steady-state error = the mean over joints of |mu_d - q(T)| (rad); false alarms (total).",
                 rc.step_joint
             ),
         ),
@@ -395,12 +396,12 @@ pub(crate) fn reaching_heading(campaign: &Campaign) -> (String, String) {
 fn reaching_markdown(campaign: &Campaign, records: &CampaignRecords) -> String {
     let (title, definition) = reaching_heading(campaign);
     let mut out = format!(
-        "\n## {title}\n\n{definition}\n\n| arm | method | belief RMSE | overshoot (%) | settling time (s) | not settled | steady-state error | false alarms |\n|---|---|---|---|---|---|---|---|\n"
+        "\n## {title}\n\n{definition} Tasks whose run did not complete (diverged, chattering) are counted apart; their measures cover only the ticks they ran.\n\n| arm | method | belief RMSE | overshoot (%) | settling time (s) | not settled | steady-state error | false alarms | not completed |\n|---|---|---|---|---|---|---|---|---|\n"
     );
-    for (a, m, v, unsettled) in reaching_rows(campaign, records) {
+    for (a, m, v, unsettled, broken) in reaching_rows(campaign, records) {
         let _ = writeln!(
             out,
-            "| {} | {m} | {} | {:.2} | {:.3} | {unsettled} | {} | {} |",
+            "| {} | {m} | {} | {:.2} | {:.3} | {unsettled} | {} | {} | {broken} |",
             campaign.config.arms[a].name,
             sci(v[0]),
             v[1],
@@ -414,15 +415,16 @@ fn reaching_markdown(campaign: &Campaign, records: &CampaignRecords) -> String {
 
 fn reaching_csv(campaign: &Campaign, records: &CampaignRecords) -> String {
     let mut out = String::from(
-        "arm,task,method,belief_rmse,overshoot_percent,settling_time,steady_state_error,false_alarms\n",
+        "arm,task,method,outcome,belief_rmse,overshoot_percent,settling_time,steady_state_error,false_alarms\n",
     );
     for r in &records.reaching {
         let _ = writeln!(
             out,
-            "{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{}",
             field(&campaign.config.arms[r.arm].name),
             r.task,
             r.method,
+            r.outcome,
             r.belief_rmse,
             r.overshoot,
             opt(r.settling_time),
@@ -496,13 +498,14 @@ pub fn campaign_json(
         })).collect::<Vec<_>>(),
         "reaching_heading": reaching_heading(campaign).0,
         "reaching_definition": reaching_heading(campaign).1,
-        "reaching": reaching_rows(campaign, records).iter().map(|(a, m, v, unsettled)| json!({
+        "reaching": reaching_rows(campaign, records).iter().map(|(a, m, v, unsettled, broken)| json!({
             "arm": campaign.config.arms[*a].name,
             "method": m.name(),
             "belief_rmse": v[0],
             "overshoot_percent": v[1],
             "settling_time": v[2],
             "not_settled": unsettled,
+            "not_completed": broken,
             "steady_state_error": v[3],
             "false_alarms": v[4],
         })).collect::<Vec<_>>(),

@@ -826,12 +826,12 @@ fn reaching_table(body: &mut String, doc: &Value) {
             esc(heading),
             esc(doc["reaching_definition"].as_str().unwrap_or(""))
         );
-        body.push_str("<table><tr><th>arm</th><th>method</th><th>belief RMSE</th><th>overshoot %</th><th>settling time (s)</th><th>not settled</th><th>steady-state error</th><th>false alarms</th></tr>");
+        body.push_str("<table><tr><th>arm</th><th>method</th><th>belief RMSE</th><th>overshoot %</th><th>settling time (s)</th><th>not settled</th><th>steady-state error</th><th>false alarms</th><th>not completed</th></tr>");
         for r in reach {
             let g = |k: &str| value_html(r.get(k).unwrap_or(&Value::Null));
             let _ = write!(
                 body,
-                "<tr><td>{}</td><td>{}</td><td class=num>{}</td><td class=num>{}</td><td class=num>{}</td><td class=num>{}</td><td class=num>{}</td><td class=num>{}</td></tr>",
+                "<tr><td>{}</td><td>{}</td><td class=num>{}</td><td class=num>{}</td><td class=num>{}</td><td class=num>{}</td><td class=num>{}</td><td class=num>{}</td><td class=num>{}</td></tr>",
                 g("arm"),
                 g("method"),
                 g("belief_rmse"),
@@ -839,7 +839,8 @@ fn reaching_table(body: &mut String, doc: &Value) {
                 g("settling_time"),
                 g("not_settled"),
                 g("steady_state_error"),
-                g("false_alarms")
+                g("false_alarms"),
+                g("not_completed")
             );
         }
         body.push_str("</table>\n");

@@ -77,6 +77,9 @@ const STEP: f64 = 0.3;
 /// The most gravity alone may bend a joint from its set point under the proportional gain
 /// (rad); the integral removes the rest.
 const GRAVITY_SAG: f64 = 0.05;
+/// The error (rad) at which the proportional torque alone equals the joint's Coulomb friction:
+/// a joint at rest closer to its target than this waits for the integral to break it free.
+const FRICTION_BAND: f64 = 0.01;
 /// The tick `init` writes (`dt`).
 const DT: f64 = 1e-3;
 /// The most a derivative gain may take per tick from the velocity of the inertia it acts on:
@@ -431,6 +434,10 @@ fn gains_from_dynamics(model: &Arc<ArmModel>, poses: &Poses) -> Gains {
         if let Some(e) = j.effort {
             kp[i] = kp[i].min(e / ERROR_SPAN);
         }
+        // Coulomb friction holds a joint at rest wherever kp e + I stays within it: the
+        // proportional torque alone overcomes it from FRICTION_BAND on, even if a 0.5 rad error
+        // then asks for more than the effort limit (the torque saturates there).
+        kp[i] = kp[i].max(j.friction / FRICTION_BAND);
         // Discrete-time limits on the inertia the joint's torque actually moves.
         let m_eff_i = m_eff[i].max(1e-9);
         // On a joint whose own damping dominates, the proportional loop's pole is kp / D (first
@@ -442,7 +449,10 @@ fn gains_from_dynamics(model: &Arc<ArmModel>, poses: &Poses) -> Gains {
             .max(0.0)
             .min(DAMPING_PER_TICK * m_eff_i / DT);
         ki[i] = kp[i] * w / 8.0;
-        let limit = (1.5 * g_max[i]).max(1.0);
+        // Enough to hold gravity and to break the joint's Coulomb friction with a margin: at rest
+        // the joint moves only once |kp e + I - G| exceeds the friction, so an integral that
+        // cannot reach G + F leaves it stuck up to (G + F - I_max) / kp off its target.
+        let limit = (1.5 * (g_max[i] + j.friction)).max(1.0);
         ilim[i] = j.effort.map_or(limit, |e| limit.min(e));
         // The joint alone answers a step with its own inertia.
         accel = accel.max(kp[i] * STEP / m_diag[i].max(1e-6));

@@ -626,7 +626,15 @@ pub struct StepInfo {
 }
 
 /// [`StepInfo`] of samples `y` at times j dt (j = 0, 1, ...) toward `yfinal` from yinit = 0.
+/// A response with a non-finite sample (or a non-finite `yfinal`) has no overshoot (NaN) and
+/// never settles; a zero step has a zero band, so it settles only where y equals yfinal exactly.
 pub fn step_info(y: &[f64], dt: f64, yfinal: f64, threshold: f64) -> StepInfo {
+    if !yfinal.is_finite() || y.iter().any(|v| !v.is_finite()) {
+        return StepInfo {
+            overshoot: f64::NAN,
+            settling_time: None,
+        };
+    }
     let step = yfinal.abs();
     let s = if yfinal < 0.0 { -1.0 } else { 1.0 };
     let peak = y
@@ -694,6 +702,13 @@ mod tests {
         assert_eq!(
             super::step_info(&[1.0, 1.001], dt, 1.0, 0.005).settling_time,
             Some(0.0)
+        );
+        // A diverged response never settles.
+        let broken = super::step_info(&[0.0, 0.5, f64::NAN], dt, 1.0, 0.005);
+        assert!(broken.overshoot.is_nan() && broken.settling_time.is_none());
+        assert_eq!(
+            super::step_info(&[0.0, 1.0], dt, f64::NAN, 0.005).settling_time,
+            None
         );
         // No overshoot for a response that stays short of the target.
         assert_eq!(

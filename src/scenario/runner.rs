@@ -454,7 +454,7 @@ impl Simulation {
         self.torques.copy_from_slice(torques);
         if !finite {
             self.control.hold();
-            self.torques.fill(0.0);
+            self.torques.copy_from_slice(self.control.torques());
         }
         self.free_energy = belief_energy.map_or(f64::NAN, |f| f + self.control.free_energy());
         self.precision.update(&PrecisionInput {

@@ -219,7 +219,10 @@ impl Camera {
     }
 
     /// Whether one of the arm's collision shapes, other than those on the end effector's own
-    /// body, lies on the line of sight from the camera to `p`.
+    /// body and those that contain `p`, lies on the line of sight from the camera to `p`. A
+    /// collision shape is a coarse hull: an end effector inside one (a tool frame inside a
+    /// wrist's cylinder, a generated link folded back into its parent's) is taken to be on its
+    /// surface, not hidden by it for ever.
     pub fn occluded(&self, arm: &dyn ArmPose, ee: &EndEffector, p: &Vector3<f64>) -> bool {
         let d = p - self.position;
         let distance = d.norm();
@@ -238,6 +241,9 @@ impl Camera {
                 c.parry_shape
                     .cast_ray(&pose, &ray, distance - OCCLUSION_MARGIN, true)
                     .is_some()
+                    && !c
+                        .parry_shape
+                        .contains_point(&pose, parry3d_f64::math::Vector::new(p.x, p.y, p.z))
             })
     }
 

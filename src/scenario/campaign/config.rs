@@ -257,7 +257,7 @@ pub struct ReachingConfig {
     /// Targets uniform in [lo, hi] rad on every joint (the authors': [-1.57, 1.57]) instead of
     /// the camera model's training box.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub target_range: Option<[f64; 2]>,
+    pub target_range: Option<Vec<f64>>,
     /// A file of targets, one per line (comma-separated radians, one per joint; `#` comments),
     /// relative to the campaign file: the first `tasks` lines are the tasks of every arm.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -296,7 +296,11 @@ pub fn read_reaching_targets(
         field: "reaching.targets_file".into(),
         message: format!("{}: {message}", file.display()),
     };
+    if file.as_os_str().is_empty() || campaign.parent().is_some_and(|p| p.join("") == file) {
+        return Err(bad("names no file".into()));
+    }
     let text = fsio::read_text(file, MAX_TARGETS_FILE_BYTES).map_err(|e| bad(e.to_string()))?;
+    let text = text.strip_prefix('\u{feff}').unwrap_or(&text);
     let mut targets = Vec::new();
     for (i, line) in text.lines().enumerate() {
         let line = line.split('#').next().unwrap_or("").trim();

@@ -109,25 +109,49 @@ impl Campaign {
         if let (Some(targets), Some(rc)) = (&reaching_targets, &config.reaching) {
             for (a, setup) in arms.iter().enumerate() {
                 let n = setup.layout.n_joints();
+                let file = rc
+                    .targets_file
+                    .as_deref()
+                    .unwrap_or(Path::new(""))
+                    .display();
                 if targets[0].len() != n {
                     return Err(invalid(
                         path,
                         "reaching.targets_file",
                         format!(
-                            "{}: targets of {} joints; arm {} ({}) has {n}",
-                            rc.targets_file
-                                .as_deref()
-                                .unwrap_or(Path::new(""))
-                                .display(),
+                            "{file}: targets of {} joints; arm {} ({}) has {n}",
                             targets[0].len(),
                             a,
                             config.arms[a].name
                         ),
                     ));
                 }
+                // A target the arm cannot reach would be measured as a steady-state error.
+                for (t, target) in targets.iter().enumerate() {
+                    for (j, (q, joint)) in target.iter().zip(&setup.model.joints).enumerate() {
+                        if let Some((lo, hi)) = joint.limits
+                            && !(lo..=hi).contains(q)
+                        {
+                            return Err(invalid(
+                                path,
+                                "reaching.targets_file",
+                                format!(
+                                    "{file}: target {} puts joint {} of arm {} ({}) at {q} rad, \
+                                     outside its limits [{lo}, {hi}]",
+                                    t + 1,
+                                    j + 1,
+                                    a,
+                                    config.arms[a].name
+                                ),
+                            ));
+                        }
+                    }
+                }
             }
         }
-        if let Some(rc) = &config.reaching {
+        if let Some(rc) = &config.reaching
+            && rc.protocol == ReachingProtocol::Authors
+        {
             for (a, setup) in arms.iter().enumerate() {
                 if rc.step_joint > setup.layout.n_joints() {
                     return Err(invalid(
@@ -315,13 +339,25 @@ fn validate(config: &CampaignConfig, path: &Path) -> Result<Vec<Method>, Scenari
                 "joints count from 1 (1 is the first joint)".into(),
             ));
         }
-        if let Some([lo, hi]) = r.target_range
-            && !(lo.is_finite() && hi.is_finite() && lo < hi && lo.abs() <= 1e3 && hi.abs() <= 1e3)
-        {
-            return Err(bad(
-                "reaching.target_range",
-                format!("[{lo}, {hi}] must be finite, lo < hi, within +-1000 rad"),
-            ));
+        if let Some(range) = &r.target_range {
+            let ok = match range[..] {
+                [lo, hi] => {
+                    lo.is_finite()
+                        && hi.is_finite()
+                        && lo < hi
+                        && lo.abs() <= 1e3
+                        && hi.abs() <= 1e3
+                }
+                _ => false,
+            };
+            if !ok {
+                return Err(bad(
+                    "reaching.target_range",
+                    format!(
+                        "{range:?} must be two numbers [lo, hi], finite, lo < hi, within +-1000 rad"
+                    ),
+                ));
+            }
         }
         if r.target_range.is_some() && r.targets_file.is_some() {
             return Err(bad(

@@ -20,6 +20,10 @@ pub struct ReachingTask {
     pub target: Vec<f64>,
 }
 
+fn completed() -> String {
+    "completed".into()
+}
+
 /// One method on one reaching task.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -28,6 +32,10 @@ pub struct ReachingRun {
     pub arm: usize,
     pub task: usize,
     pub method: Method,
+    /// How the run ended (`completed`, `diverged`, `chattering`, `stopped`): the measures of a
+    /// run that did not complete describe only the ticks it ran.
+    #[serde(default = "completed")]
+    pub outcome: String,
     pub belief_rmse: f64,
     /// Largest overshoot beyond the target along the step, over joints (% of the step).
     pub overshoot: f64,
@@ -59,9 +67,18 @@ impl Campaign {
             }
             let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(rc.seed);
             rng.set_stream(a as u64);
-            let boxes: Vec<(f64, f64)> = match rc.target_range {
-                Some([lo, hi]) => vec![(lo, hi); setup.layout.n_joints()],
-                None => setup
+            let boxes: Vec<(f64, f64)> = match rc.target_range.as_deref() {
+                // The range on every joint, clipped to the joint's limits.
+                Some(&[lo, hi]) => setup
+                    .model
+                    .joints
+                    .iter()
+                    .map(|j| match j.limits {
+                        Some((llo, lhi)) => (lo.max(llo), hi.min(lhi)),
+                        None => (lo, hi),
+                    })
+                    .collect(),
+                _ => setup
                     .gp
                     .training_box
                     .iter()
@@ -238,6 +255,7 @@ pub(super) fn run_reaching(
                 arm: task.arm,
                 task: task.task,
                 method: m,
+                outcome: r.outcome.name().to_string(),
                 belief_rmse: (obs.sq / obs.count.max(1) as f64).sqrt(),
                 overshoot: obs.overshoot.max(0.0),
                 settling_time: match obs.last_outside {
@@ -255,6 +273,7 @@ pub(super) fn run_reaching(
                     arm: task.arm,
                     task: task.task,
                     method: m,
+                    outcome: r.outcome.name().to_string(),
                     belief_rmse: measures.belief_rmse,
                     overshoot: measures.overshoot,
                     settling_time: measures.settling_time,
