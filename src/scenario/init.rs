@@ -29,7 +29,13 @@
 //!   every tick above kd dt / m = 1: a 7-DOF arm's coaxial roll joints chattered at 500 Hz under
 //!   the gains the rules above give alone. (A first version scaled every gain together, kp too:
 //!   on generated arms it left heavy joints 1.5 rad off under gravity.)
-//! - Integral limit: 1.5 x the largest gravity torque seen (at least 1 N m), capped at the effort.
+//! - Coulomb friction F_i (since 2026-12-04): kp_i >= F_i / 0.01 rad, above the effort cap (the
+//!   proportional torque alone breaks the friction from 0.01 rad on), and the integral limit
+//!   covers it. (Gains that ignored it left generated arms and a Panda with 4 N m of friction on
+//!   its wrist stuck off their targets: 6 of 40 generated arms, seeds 50001..50040, refused by
+//!   the check run; none since, with the camera seeing an end effector inside a hull.)
+//! - Integral limit: 1.5 x (the largest gravity torque seen + F_i), at least 1 N m, capped at the
+//!   effort.
 //! - Camera: a pinhole looking along the axis in which the end effector moves least over the
 //!   training box (the smallest principal axis of 200 sampled positions), from 3 x the extent of
 //!   the workspace, so its image spans the motion; the opposite side when more of the samples are
@@ -801,8 +807,8 @@ fn render(scenario: &Scenario, notes: &Notes<'_>) -> String {
              # targets (the joint's inertia with the reaction of the others' motion: {}), the largest\n\
              # gravity torque G_i ({}) and the joint damping D_i: kp = max(m w^2, D w / 2, G / {GRAVITY_SAG} rad),\n\
              # kd = max(0, 2 zeta sqrt(kp m) - D), ki = kp w / 8, w = {OMEGA} rad/s (lower where a {ERROR_SPAN} rad error\n\
-             # would exceed the effort limit), zeta = {ZETA}; the integral is clamped at 1.5 x G, at least 1 N m,\n\
-             # at most the effort limit.\n",
+             # would exceed the effort limit), zeta = {ZETA}; kp >= F / {FRICTION_BAND} rad for Coulomb friction F;\n\
+             # the integral is clamped at 1.5 x (G + F), at least 1 N m, at most the effort limit.\n",
             fmt_list(notes.m_max),
             fmt_list(notes.g_max)
         ),
