@@ -238,9 +238,13 @@ fn campaign(args: CampaignArgs) -> Result<(), Failure> {
     if shard == Shard::WHOLE && !campaign.cells.is_empty() {
         print_method_table(args.json, &campaign, &records.runs);
     }
+    let kept = match started {
+        JournalStart::Resumed { jobs, .. } => format!(" ({jobs} jobs' runs kept from the journal)"),
+        _ => String::new(),
+    };
     say!(
         args.json,
-        "{} runs in {:.1} s on {} threads; wrote {}/",
+        "{} runs{kept} in {:.1} s on {} threads; wrote {}/",
         records.runs.len() + records.reaching.len(),
         start.elapsed().as_secs_f64(),
         rayon::current_num_threads(),
