@@ -68,17 +68,12 @@ fn aift_figures(dir: &Path, tasks: usize, overrides: &[&str]) -> Vec<ReachingRun
     runs
 }
 
-fn tempdir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("aift-authors-{name}-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
 #[test]
 fn noiseless_loop_reproduces_the_authors_script_to_machine_precision() {
     let reference = octave_figures("octave_noiseless_reset.csv");
     assert_eq!(reference.len(), 100);
-    let dir = tempdir("noiseless");
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().to_path_buf();
     let ours = aift_figures(
         &dir,
         reference.len(),
@@ -116,7 +111,6 @@ fn noiseless_loop_reproduces_the_authors_script_to_machine_precision() {
         worst[2]
     );
     assert!(worst[3] <= 1e-9, "RMSE differs by {} (relative)", worst[3]);
-    let _ = std::fs::remove_dir_all(dir);
 }
 
 /// The authors' four measures of one run, recomputed here from the trajectory (independent of
@@ -282,7 +276,8 @@ fn refused(args: &[&str], dir: &Path, file: &str, key: &str) {
 
 #[test]
 fn bad_compatibility_settings_are_refused_naming_the_file_and_the_key() {
-    let dir = tempdir("bad");
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().to_path_buf();
     let scenario = root().join("assets/scenarios/authors_matlab.toml");
     let text = std::fs::read_to_string(&scenario).unwrap().replace(
         "urdf = \"../../urdf/planar_2dof.urdf\"",
@@ -422,35 +417,14 @@ fn bad_compatibility_settings_are_refused_naming_the_file_and_the_key() {
         assert!(!dir.join("out").exists());
     }
     std::fs::write(dir.join("two.csv"), "0.1, 0.2\n0.3, 0.4\n").unwrap();
-    std::fs::write(dir.join("c.toml"), campaign("two.csv", "step_joint = 3\n")).unwrap();
-    refused(
-        &["campaign", "c.toml", "--out", "out"],
-        &dir,
-        "c.toml",
-        "reaching.step_joint",
-    );
-    std::fs::write(
-        dir.join("c.toml"),
-        campaign("two.csv", "target_range = [1.0, -1.0]\n"),
-    )
-    .unwrap();
-    refused(
-        &["campaign", "c.toml", "--out", "out"],
-        &dir,
-        "c.toml",
-        "reaching.target_range",
-    );
-    std::fs::write(
-        dir.join("c.toml"),
-        campaign("two.csv", "target_range = [-1.0, 0.0, 1.0]\n"),
-    )
-    .unwrap();
-    refused(
-        &["campaign", "c.toml", "--out", "out"],
-        &dir,
-        "c.toml",
-        "reaching.target_range",
-    );
+    for (extra, key) in [
+        ("step_joint = 3\n", "reaching.step_joint"),
+        ("target_range = [1.0, -1.0]\n", "reaching.target_range"),
+        ("target_range = [-1.0, 0.0, 1.0]\n", "reaching.target_range"),
+    ] {
+        std::fs::write(dir.join("c.toml"), campaign("two.csv", extra)).unwrap();
+        refused(&["campaign", "c.toml", "--out", "out"], &dir, "c.toml", key);
+    }
     // A target outside a joint's limits (the Panda's joint 7 stops at 2.9 rad).
     std::fs::write(dir.join("panda.csv"), "0, 0, 0, -1.5, 0, 1.5, 5.0\n").unwrap();
     std::fs::write(
@@ -473,5 +447,4 @@ fn bad_compatibility_settings_are_refused_naming_the_file_and_the_key() {
     // And the same campaign, well formed, runs.
     std::fs::write(dir.join("c.toml"), campaign("two.csv", "")).unwrap();
     common::aift_ok(&["campaign", "c.toml", "--out", "out"], &dir);
-    let _ = std::fs::remove_dir_all(dir);
 }

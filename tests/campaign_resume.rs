@@ -11,30 +11,14 @@ use std::path::{Path, PathBuf};
 use std::process::Stdio;
 use std::time::{Duration, Instant};
 
-/// About a hundred jobs of a few tens of milliseconds: long enough to be interrupted.
+/// About a hundred jobs of a few tens of milliseconds: long enough to be interrupted (the tiny
+/// campaign at 12 seeds, 20 s, both joint sensor kinds, with a reaching benchmark).
 fn write_campaign(dir: &Path) {
-    let text = format!(
-        r#"
-name = "resume"
-seeds = 12
-methods = ["no-ft", "oracle"]
-defaults = {{ duration = 20.0, plant = {{ engine = "articulated" }} }}
-channels = ["enc*", "tach*"]
-
-[[arms]]
-name = "paper"
-scenario = "{}"
-
-[[kinds]]
-kind = "freeze"
-onsets = ["moving"]
-
-[reaching]
-tasks = 4
-duration = 4.0
-"#,
-        common::repo("assets/scenarios/paper_healthy.toml").display()
-    );
+    let text = common::tiny_campaign("resume", "\n[reaching]\ntasks = 4\nduration = 4.0\n")
+        .replace("seeds = 1", "seeds = 12")
+        .replace("duration = 9.0", "duration = 20.0")
+        .replace(r#"channels = ["enc*"]"#, r#"channels = ["enc*", "tach*"]"#);
+    assert!(text.contains("seeds = 12") && text.contains("\"tach*\""));
     std::fs::write(dir.join("c.toml"), text).unwrap();
 }
 

@@ -84,8 +84,9 @@ const STEP: f64 = 0.3;
 /// (rad); the integral removes the rest.
 const GRAVITY_SAG: f64 = 0.05;
 /// The error (rad) at which the proportional torque alone equals the joint's Coulomb friction:
-/// a joint at rest closer to its target than this waits for the integral to break it free.
-const FRICTION_BAND: f64 = 0.01;
+/// a joint at rest closer to its target than this waits for the integral to break it free. The
+/// check run's tolerance: a joint the proportional torque leaves stuck is still within it.
+const FRICTION_BAND: f64 = CHECK_TOLERANCE;
 /// The tick `init` writes (`dt`).
 const DT: f64 = 1e-3;
 /// The most a derivative gain may take per tick from the velocity of the inertia it acts on:
