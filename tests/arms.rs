@@ -28,7 +28,7 @@ fn with_faults(setup: &RunSetup, faults: Vec<FaultSpec>) -> RunSetup {
     let mut s = setup.clone();
     s.faults = faults
         .iter()
-        .map(|f| f.to_fault(&s.layout).unwrap())
+        .map(|f| f.to_fault(&s.layout, s.scenario().dt).unwrap())
         .collect();
     s.loaded.scenario.faults = faults;
     s

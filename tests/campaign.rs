@@ -106,6 +106,62 @@ faults = [{ channel = "tach*", kind = "freeze", start = 8.0 }]
     );
 }
 
+/// The timing kinds expand like the others; garbage's range is per sensor group.
+#[test]
+fn timing_kinds_expand_with_their_parameters() {
+    use aift::sensors::FaultKind;
+    let text = r#"
+name = "t"
+channels = ["enc*", "tach*", "cam"]
+arms = [{ name = "a", scenario = "x.toml" }]
+[[kinds]]
+kind = "delayed"
+delay = 0.05
+[[kinds]]
+kind = "slow"
+period = 0.1
+onsets = ["rest"]
+[[kinds]]
+kind = "intermittent"
+period = 0.2
+duty = 0.5
+[[kinds]]
+kind = "garbage"
+low = { enc = -3.0, tach = -10.0, cam = 0.0 }
+high = { enc = 3.0, tach = 10.0, cam = 1.0 }
+"#;
+    let config: CampaignConfig = toml::from_str(text).unwrap();
+    let cells = expand(&config, &config.onsets);
+    assert_eq!(cells.len(), 1 + 3 * 4);
+    let kind = |label: &str| cells.iter().find(|c| c.label == label).unwrap().faults[0].kind;
+    assert_eq!(
+        kind("enc1 delayed moving"),
+        FaultKind::Delayed { delay: 0.05 }
+    );
+    assert_eq!(kind("cam slow rest"), FaultKind::Slow { period: 0.1 });
+    assert_eq!(
+        kind("tach1 intermittent moving"),
+        FaultKind::Intermittent {
+            period: 0.2,
+            duty: 0.5
+        }
+    );
+    assert_eq!(
+        kind("tach1 garbage moving"),
+        FaultKind::Garbage {
+            low: -10.0,
+            high: 10.0
+        }
+    );
+    assert_eq!(
+        kind("cam garbage moving"),
+        FaultKind::Garbage {
+            low: 0.0,
+            high: 1.0
+        }
+    );
+}
+
 /// The bundled campaign files parse and expand to the grids their comments promise.
 #[test]
 fn the_bundled_campaigns_expand_to_their_grids() {

@@ -126,7 +126,7 @@ fn adding_a_fault_does_not_change_another_channels_noise() {
         0.0,
         None,
     )
-    .to_fault(&layout2())
+    .to_fault(&layout2(), 1e-3)
     .unwrap();
     let mut clean = suite(arm.as_ref(), &[], 3);
     let mut faulty = suite(arm.as_ref(), &[spikes], 3);
@@ -217,7 +217,7 @@ fn with_and_without(
     let mut arm = arm("urdf/planar_2dof.urdf");
     arm.set_state(&[-0.5, 0.5], &[0.0, 0.0]);
     arm.set_torques(&[60.0, 5.0]);
-    let fault = fault.to_fault(&layout2()).unwrap();
+    let fault = fault.to_fault(&layout2(), 1e-3).unwrap();
     let mut clean = suite(arm.as_ref(), &[], 9);
     let mut faulty = suite(arm.as_ref(), &[fault], 9);
     let (mut a, mut b) = (
@@ -338,6 +338,84 @@ fn spikes_are_outliers_with_the_given_probability() {
     );
 }
 
+/// Timing faults (PX4's delayed, slow, intermittent, garbage), against the clean readings.
+#[test]
+fn delayed_delivers_the_reading_of_delay_seconds_before() {
+    // 0.0234 s at 1 ms: 24 ticks (rounded up).
+    let s = spec("enc2", FaultKind::Delayed { delay: 0.0234 }, 0.1, Some(0.2));
+    let (fa, cl, _) = with_and_without(s, 1);
+    assert_only_between(&fa, &cl);
+    for k in 100..200 {
+        assert_eq!(fa[k], cl[k - 24], "tick {k}");
+    }
+    assert_ne!(cl[150], cl[126], "the arm moved meanwhile");
+}
+
+#[test]
+fn delayed_is_missing_until_the_run_is_old_enough() {
+    let s = spec("tach2", FaultKind::Delayed { delay: 0.05 }, 0.0, None);
+    let (fa, cl, _) = with_and_without(s, 3);
+    assert!(fa[..50].iter().all(Option::is_none));
+    for k in 50..300 {
+        assert_eq!(fa[k], cl[k - 50], "tick {k}");
+    }
+}
+
+#[test]
+fn slow_holds_each_sample_for_its_period() {
+    let s = spec("enc1", FaultKind::Slow { period: 0.02 }, 0.1, Some(0.2));
+    let (fa, cl, _) = with_and_without(s, 0);
+    assert_only_between(&fa, &cl);
+    for k in 100..200 {
+        let sampled = 100 + (k - 100) / 20 * 20;
+        assert_eq!(fa[k], cl[sampled], "tick {k}");
+    }
+}
+
+#[test]
+fn intermittent_drops_the_first_duty_of_every_cycle() {
+    let s = spec(
+        "cam_v",
+        FaultKind::Intermittent {
+            period: 0.01,
+            duty: 0.3,
+        },
+        0.1,
+        Some(0.2),
+    );
+    let (fa, cl, _) = with_and_without(s, 5);
+    assert_only_between(&fa, &cl);
+    for k in 100..200 {
+        let expected = if (k - 100) % 10 < 3 { None } else { cl[k] };
+        assert_eq!(fa[k], expected, "tick {k}");
+    }
+}
+
+#[test]
+fn garbage_is_uniform_over_its_range_whatever_the_truth() {
+    let s = spec(
+        "tach1",
+        FaultKind::Garbage {
+            low: -2.0,
+            high: 6.0,
+        },
+        0.1,
+        Some(0.2),
+    );
+    let (fa, cl, _) = with_and_without(s, 2);
+    assert_only_between(&fa, &cl);
+    let values: Vec<f64> = fa[100..200].iter().map(|v| v.unwrap()).collect();
+    assert!(values.iter().all(|v| (-2.0..=6.0).contains(v)));
+    // Uniform on [-2, 6]: mean 2, sd 8 / sqrt(12) = 2.31; the mean of 100 within 4 sd / 10.
+    let mean = values.iter().sum::<f64>() / 100.0;
+    assert!((mean - 2.0).abs() < 4.0 * 2.31 / 10.0, "{mean}");
+    let below = values.iter().filter(|v| **v < 2.0).count();
+    assert!(
+        (30..=70).contains(&below),
+        "{below} of 100 below the middle"
+    );
+}
+
 #[test]
 fn fault_specs_are_validated_field_by_field() {
     let freeze = FaultKind::Freeze {};
@@ -362,10 +440,56 @@ fn fault_specs_are_validated_field_by_field() {
             ),
             "probability",
         ),
+        (
+            spec("enc1", FaultKind::Delayed { delay: 0.0 }, 1.0, None),
+            "delay",
+        ),
+        // 2 s of 1 ms ticks is allowed, but not 11 s (longer than MAX_DELAY).
+        (
+            spec("enc1", FaultKind::Delayed { delay: 11.0 }, 1.0, None),
+            "delay",
+        ),
+        // Half a tick: no lower rate.
+        (
+            spec("enc1", FaultKind::Slow { period: 5e-4 }, 1.0, None),
+            "period",
+        ),
+        (
+            spec(
+                "enc1",
+                FaultKind::Intermittent {
+                    period: 0.1,
+                    duty: 1.0,
+                },
+                1.0,
+                None,
+            ),
+            "duty",
+        ),
+        (
+            spec(
+                "enc1",
+                FaultKind::Garbage {
+                    low: 1.0,
+                    high: 1.0,
+                },
+                1.0,
+                None,
+            ),
+            "high",
+        ),
     ];
     for (s, field) in cases {
-        assert_eq!(s.to_fault(&layout2()).unwrap_err().field, field, "{s:?}");
+        assert_eq!(
+            s.to_fault(&layout2(), 1e-3).unwrap_err().field,
+            field,
+            "{s:?}"
+        );
     }
+    // A delay's memory is bounded in ticks: 1 s of 1 us ticks is 1e6 readings per channel.
+    let long = spec("enc1", FaultKind::Delayed { delay: 1.0 }, 1.0, None);
+    assert!(long.to_fault(&layout2(), 1e-3).is_ok());
+    assert_eq!(long.to_fault(&layout2(), 1e-6).unwrap_err().field, "delay");
 }
 
 /// A fault as a file writes it: the kind is a tag, its parameters are typed, and a parameter
@@ -377,7 +501,7 @@ fn fault_kinds_parse_as_tagged_data() {
     assert_eq!(f.kind, FaultKind::Bias { offset: 0.04 });
     let f =
         parse("channel = [\"enc1\", \"cam\"]\nkind = \"freeze\"\nstart = 1.0\nend = 2.0").unwrap();
-    let fault = f.to_fault(&layout2()).unwrap();
+    let fault = f.to_fault(&layout2(), 1e-3).unwrap();
     assert_eq!(fault.channels, vec![0, 4, 5]);
     assert_eq!(fault.end, Some(2.0));
     for bad in [
@@ -402,10 +526,10 @@ fn overlapping_faults_apply_in_order_and_end_separately() {
     let mut arm = arm("urdf/planar_2dof.urdf");
     arm.set_state(&[-0.5, 0.5], &[0.0, 0.0]);
     let bias = spec("enc1", FaultKind::Bias { offset: 0.1 }, 0.1, Some(0.3))
-        .to_fault(&layout2())
+        .to_fault(&layout2(), 1e-3)
         .unwrap();
     let gain = spec("enc", FaultKind::Gain { factor: 2.0 }, 0.2, Some(0.4))
-        .to_fault(&layout2())
+        .to_fault(&layout2(), 1e-3)
         .unwrap();
     let mut clean = suite(arm.as_ref(), &[], 4);
     let mut faulty = suite(arm.as_ref(), &[bias, gain], 4);

@@ -402,7 +402,7 @@ impl Scenario {
             return Err(SettingError::new("faults", format!("at most {MAX_FAULTS}")));
         }
         for (i, f) in self.faults.iter().enumerate() {
-            f.to_fault(layout)
+            f.to_fault(layout, self.dt)
                 .map_err(|e| e.within(&format!("faults[{i}]")))?;
         }
         Ok(())

@@ -141,7 +141,7 @@ impl RunSetup {
         let faults: Vec<Fault> = sc
             .faults
             .iter()
-            .map(|f| f.to_fault(&layout).expect("validated"))
+            .map(|f| f.to_fault(&layout, sc.dt).expect("validated"))
             .collect();
         let (gp, gp_source) = match &sc.gp.model {
             Some(rel) => {

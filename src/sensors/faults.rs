@@ -6,7 +6,8 @@
 //!
 //! ```toml
 //! [[faults]]
-//! kind = "bias"            # freeze, bias, drift, gain, noise, dropout, stuck, spikes
+//! kind = "bias"            # freeze, bias, drift, gain, noise, dropout, stuck, spikes,
+//!                          # delayed, slow, intermittent, garbage
 //! channel = "enc1"         # a channel, a group (enc, tach, cam) or a list: ["enc1", "cam"]
 //! start = 8.0              # s
 //! end = 12.0               # s, optional
@@ -59,7 +60,41 @@ pub enum FaultKind {
         /// Size of an outlier, in the channel's unit.
         magnitude: f64,
     },
+    /// The reading is the one of `delay` seconds before (rounded up to whole ticks; missing
+    /// when the run is younger than that). Latency on joint feedback.
+    Delayed {
+        /// Age of the reading delivered (s), at most [`MAX_DELAY`] and [`MAX_DELAY_TICKS`] ticks.
+        delay: f64,
+    },
+    /// The reading is sampled at the fault's first tick and every `period` seconds after, and
+    /// held between (a sensor updating at a lower rate).
+    Slow {
+        /// Time between fresh readings (s), at least two ticks.
+        period: f64,
+    },
+    /// Dropout bursts: in each `period` from the fault's start, the reading is missing for the
+    /// first `duty` fraction (at least one tick) and present for the rest.
+    Intermittent {
+        /// Length of one burst cycle (s), at least two ticks.
+        period: f64,
+        /// Fraction of each cycle without reading, in (0, 1).
+        duty: f64,
+    },
+    /// The reading is uniform in [`low`, `high`] every tick, whatever the truth.
+    Garbage {
+        /// Lower end, in the channel's unit.
+        low: f64,
+        /// Upper end, in the channel's unit (> low).
+        high: f64,
+    },
 }
+
+/// Longest [`FaultKind::Delayed`] delay (s).
+pub const MAX_DELAY: f64 = 10.0;
+/// Most ticks a [`FaultKind::Delayed`] fault keeps per channel (its memory bound).
+pub const MAX_DELAY_TICKS: u64 = 100_000;
+/// Longest period of a [`FaultKind::Slow`] or [`FaultKind::Intermittent`] fault (s).
+pub const MAX_PERIOD: f64 = 1e4;
 
 impl FaultKind {
     /// The kind's name as written in files.
@@ -73,6 +108,10 @@ impl FaultKind {
             Self::Dropout {} => "dropout",
             Self::Stuck { .. } => "stuck",
             Self::Spikes { .. } => "spikes",
+            Self::Delayed { .. } => "delayed",
+            Self::Slow { .. } => "slow",
+            Self::Intermittent { .. } => "intermittent",
+            Self::Garbage { .. } => "garbage",
         }
     }
 
@@ -110,8 +149,81 @@ impl FaultKind {
                 }
                 finite("magnitude", magnitude)
             }
+            Self::Delayed { delay } => {
+                if !(delay.is_finite() && delay > 0.0 && delay <= MAX_DELAY) {
+                    return Err(crate::SettingError::new(
+                        "delay",
+                        format!("{delay} must be in (0, {MAX_DELAY}] s"),
+                    ));
+                }
+                Ok(())
+            }
+            Self::Slow { period } => check_period(period),
+            Self::Intermittent { period, duty } => {
+                check_period(period)?;
+                if !(duty > 0.0 && duty < 1.0) {
+                    return Err(crate::SettingError::new(
+                        "duty",
+                        format!("{duty} must be in (0, 1)"),
+                    ));
+                }
+                Ok(())
+            }
+            Self::Garbage { low, high } => {
+                finite("low", low)?;
+                finite("high", high)?;
+                if high <= low {
+                    return Err(crate::SettingError::new(
+                        "high",
+                        format!("{high} must be greater than low ({low})"),
+                    ));
+                }
+                Ok(())
+            }
         }
     }
+
+    /// Checks what depends on the tick length: a delay within [`MAX_DELAY_TICKS`] ticks, periods
+    /// of at least two ticks.
+    pub fn validate_at(&self, dt: f64) -> Result<(), crate::SettingError> {
+        match *self {
+            Self::Delayed { delay } => {
+                let ticks = tick_at(delay, dt);
+                if ticks > MAX_DELAY_TICKS {
+                    return Err(crate::SettingError::new(
+                        "delay",
+                        format!("{delay} s is {ticks} ticks of {dt} s; at most {MAX_DELAY_TICKS}"),
+                    ));
+                }
+                Ok(())
+            }
+            Self::Slow { period } | Self::Intermittent { period, .. } => {
+                if period_ticks(period, dt) < 2 {
+                    return Err(crate::SettingError::new(
+                        "period",
+                        format!("{period} s must be at least two ticks of {dt} s"),
+                    ));
+                }
+                Ok(())
+            }
+            _ => Ok(()),
+        }
+    }
+}
+
+fn check_period(period: f64) -> Result<(), crate::SettingError> {
+    if !(period.is_finite() && period > 0.0 && period <= MAX_PERIOD) {
+        return Err(crate::SettingError::new(
+            "period",
+            format!("{period} must be in (0, {MAX_PERIOD}] s"),
+        ));
+    }
+    Ok(())
+}
+
+/// A period in whole ticks (rounded to the nearest).
+fn period_ticks(period: f64, dt: f64) -> u64 {
+    (period / dt).round().max(0.0) as u64
 }
 
 /// Which channels a fault hits: one selector or a list (`"enc1"`, `"cam"`, `["enc1", "tach1"]`).
@@ -171,8 +283,9 @@ pub struct Fault {
 }
 
 impl FaultSpec {
-    /// Checks the spec against a layout; on error returns the offending field and why.
-    pub fn to_fault(&self, layout: &ChannelLayout) -> Result<Fault, crate::SettingError> {
+    /// Checks the spec against a layout and the tick length `dt` (s); on error returns the
+    /// offending field and why.
+    pub fn to_fault(&self, layout: &ChannelLayout, dt: f64) -> Result<Fault, crate::SettingError> {
         let selectors = self.channel.selectors();
         if selectors.is_empty() {
             return Err(crate::SettingError::new("channel", "names no channel"));
@@ -214,6 +327,7 @@ impl FaultSpec {
             ));
         }
         self.kind.validate()?;
+        self.kind.validate_at(dt)?;
         Ok(Fault {
             channels,
             kind: self.kind,
@@ -262,29 +376,72 @@ pub(crate) struct ActiveFault {
     pub fault: Fault,
     start_tick: u64,
     end_tick: Option<u64>,
-    /// Held values per channel for `Freeze` (None: not yet captured, or missing when captured).
+    /// Held values per channel for `Freeze` and `Slow` (None: not yet captured; the inner
+    /// None: missing when captured).
     held: Vec<Option<Option<f64>>>,
+    /// `Delayed`: the readings entering the fault over the last `delay_ticks + 1` ticks, per
+    /// channel hit (kept every tick, acting or not, so the first delayed reading exists).
+    history: Vec<std::collections::VecDeque<Option<f64>>>,
+    delay_ticks: usize,
+    /// `Slow` and `Intermittent`: the cycle and, for `Intermittent`, its missing part, in ticks.
+    period_ticks: u64,
+    gap_ticks: u64,
     rng: ChaCha8Rng,
 }
 
-/// Stream ids of spike generators: far from the noise streams.
+/// Stream ids of spike and garbage generators: far from the noise streams.
 const SPIKE_STREAM_BASE: u64 = 1 << 32;
 
 impl ActiveFault {
     pub fn new(fault: Fault, index: usize, n_channels: usize, dt: f64, seed: u64) -> Self {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         rng.set_stream(SPIKE_STREAM_BASE + index as u64);
+        let (delay_ticks, period_ticks, gap_ticks) = match fault.kind {
+            FaultKind::Delayed { delay } => (tick_at(delay, dt) as usize, 0, 0),
+            FaultKind::Slow { period } => (0, period_ticks(period, dt), 0),
+            FaultKind::Intermittent { period, duty } => {
+                let p = period_ticks(period, dt);
+                let gap = ((duty * p as f64).round() as u64).clamp(1, p - 1);
+                (0, p, gap)
+            }
+            _ => (0, 0, 0),
+        };
+        let history = if matches!(fault.kind, FaultKind::Delayed { .. }) {
+            (0..n_channels)
+                .map(|c| {
+                    let len = if fault.hits(c) { delay_ticks + 1 } else { 0 };
+                    std::collections::VecDeque::with_capacity(len)
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
         Self {
             start_tick: fault.start_tick(dt),
             end_tick: fault.end_tick(dt),
             fault,
             held: vec![None; n_channels],
+            history,
+            delay_ticks,
+            period_ticks,
+            gap_ticks,
             rng,
         }
     }
 
     pub fn active(&self, tick: u64) -> bool {
         tick >= self.start_tick && self.end_tick.is_none_or(|e| tick < e)
+    }
+
+    /// Shows the fault channel `c`'s reading at a tick, acting or not (a delay line must
+    /// know the readings from before it starts).
+    pub fn remember(&mut self, c: usize, reading: Option<f64>) {
+        if let Some(h) = self.history.get_mut(c) {
+            if h.len() == self.delay_ticks + 1 {
+                h.pop_front();
+            }
+            h.push_back(reading);
+        }
     }
 
     /// Applies the fault to channel `c` at `tick`. `noise` is this tick's noise sample in the
@@ -298,11 +455,12 @@ impl ActiveFault {
         reading: Option<f64>,
     ) -> Option<f64> {
         use rand::RngExt;
+        let since = tick - self.start_tick;
         match self.fault.kind {
             FaultKind::Freeze {} => *self.held[c].get_or_insert(reading),
             FaultKind::Bias { offset } => reading.map(|r| r + offset),
             FaultKind::Drift { rate } => {
-                let elapsed = (tick - self.start_tick) as f64 * dt;
+                let elapsed = since as f64 * dt;
                 reading.map(|r| r + rate * elapsed)
             }
             FaultKind::Gain { factor } => reading.map(|r| r * factor),
@@ -317,6 +475,32 @@ impl ActiveFault {
                 let fire = self.rng.random::<f64>() < probability;
                 let sign = if self.rng.random::<bool>() { 1.0 } else { -1.0 };
                 reading.map(|r| if fire { r + sign * magnitude } else { r })
+            }
+            FaultKind::Delayed { .. } => {
+                let h = &self.history[c];
+                if h.len() == self.delay_ticks + 1 {
+                    h[0]
+                } else {
+                    None
+                }
+            }
+            FaultKind::Slow { .. } => {
+                if since.is_multiple_of(self.period_ticks) {
+                    self.held[c] = Some(reading);
+                }
+                self.held[c].flatten()
+            }
+            FaultKind::Intermittent { .. } => {
+                if since % self.period_ticks < self.gap_ticks {
+                    None
+                } else {
+                    reading
+                }
+            }
+            FaultKind::Garbage { low, high } => {
+                // One draw every tick: the stream stays aligned.
+                let u = self.rng.random::<f64>();
+                Some(low + (high - low) * u)
             }
         }
     }

@@ -23,7 +23,9 @@ use serde::{Deserialize, Serialize};
 use crate::arm::EndEffector;
 use crate::plant::Plant;
 pub use camera::{Camera, CameraConfig, CameraModel, NotSeen};
-pub use faults::{ChannelSelection, Fault, FaultKind, FaultSpec};
+pub use faults::{
+    ChannelSelection, Fault, FaultKind, FaultSpec, MAX_DELAY, MAX_DELAY_TICKS, MAX_PERIOD,
+};
 
 /// One sensory channel.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -454,6 +456,7 @@ impl SensorSuite {
             let active = fault.active(tick);
             for i in 0..fault.fault.channels.len() {
                 let c = fault.fault.channels[i];
+                fault.remember(c, out.values[c]);
                 if active {
                     out.values[c] = fault.apply(c, tick, self.dt, self.noise[c], out.values[c]);
                 } else {

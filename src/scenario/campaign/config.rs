@@ -149,6 +149,28 @@ pub enum CampaignKind {
         #[serde(default = "moving_only")]
         onsets: Vec<Onset>,
     },
+    Delayed {
+        delay: f64,
+        #[serde(default = "moving_only")]
+        onsets: Vec<Onset>,
+    },
+    Slow {
+        period: f64,
+        #[serde(default = "moving_only")]
+        onsets: Vec<Onset>,
+    },
+    Intermittent {
+        period: f64,
+        duty: f64,
+        #[serde(default = "moving_only")]
+        onsets: Vec<Onset>,
+    },
+    Garbage {
+        low: GroupSizes,
+        high: GroupSizes,
+        #[serde(default = "moving_only")]
+        onsets: Vec<Onset>,
+    },
 }
 
 impl CampaignKind {
@@ -161,7 +183,11 @@ impl CampaignKind {
             | Self::Noise { onsets, .. }
             | Self::Dropout { onsets }
             | Self::Stuck { onsets, .. }
-            | Self::Spikes { onsets, .. } => onsets,
+            | Self::Spikes { onsets, .. }
+            | Self::Delayed { onsets, .. }
+            | Self::Slow { onsets, .. }
+            | Self::Intermittent { onsets, .. }
+            | Self::Garbage { onsets, .. } => onsets,
         }
     }
 
@@ -188,6 +214,16 @@ impl CampaignKind {
             } => FaultKind::Spikes {
                 probability: *probability,
                 magnitude: magnitude.for_channel(channel),
+            },
+            Self::Delayed { delay, .. } => FaultKind::Delayed { delay: *delay },
+            Self::Slow { period, .. } => FaultKind::Slow { period: *period },
+            Self::Intermittent { period, duty, .. } => FaultKind::Intermittent {
+                period: *period,
+                duty: *duty,
+            },
+            Self::Garbage { low, high, .. } => FaultKind::Garbage {
+                low: low.for_channel(channel),
+                high: high.for_channel(channel),
             },
         }
     }

@@ -216,7 +216,7 @@ impl Campaign {
         s.faults = cell
             .faults
             .iter()
-            .map(|f| f.to_fault(&s.layout).expect("validated"))
+            .map(|f| f.to_fault(&s.layout, s.scenario().dt).expect("validated"))
             .collect();
         if cell.rest {
             s.loaded.scenario.targets.truncate(1);
@@ -646,7 +646,7 @@ fn check_cells(
         let setup = &arms[cell.arm];
         let sc = setup.scenario();
         for (k, f) in cell.faults.iter().enumerate() {
-            f.to_fault(&setup.layout).map_err(|e| {
+            f.to_fault(&setup.layout, sc.dt).map_err(|e| {
                 bad(
                     &format!(
                         "cell `{}` of arm {}: fault {k}.{}",
