@@ -27,3 +27,9 @@ impl SettingError {
         self
     }
 }
+
+/// The first tick at or after time `t` (robust to rounding of `t / dt`): where a fault, a target
+/// or any timed event starts.
+pub fn tick_at(t: f64, dt: f64) -> u64 {
+    (t / dt - 1e-6).ceil().max(0.0) as u64
+}

@@ -32,9 +32,10 @@ fn uses(path: &Path) -> BTreeSet<String> {
                 .chars()
                 .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
                 .collect();
-            // `crate::SettingError` and `crate::error_chain` are the crate root's (settings).
+            // `crate::SettingError`, `crate::tick_at` and `crate::error_chain` are the crate
+            // root's (settings, fsio).
             let name = match name.as_str() {
-                "SettingError" => "settings".to_string(),
+                "SettingError" | "tick_at" => "settings".to_string(),
                 "error_chain" => "fsio".to_string(),
                 _ => name,
             };

@@ -678,6 +678,7 @@ impl PySim {
         obs.set_item("mu_p", r.mu_p.to_vec())?;
         obs.set_item("target", r.target.to_vec())?;
         obs.set_item("u", r.torques.to_vec())?;
+        obs.set_item("applied", r.applied.to_vec())?;
         obs.set_item(
             "y",
             r.readings

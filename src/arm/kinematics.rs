@@ -71,9 +71,29 @@ impl EndEffector {
 /// The end effector's positional Jacobian d(ee)/dq (3 x n) from the joints' world axes, given
 /// the bodies' world poses.
 pub fn ee_jacobian(model: &ArmModel, ee: &EndEffector, poses: &[Isometry3<f64>]) -> DMatrix<f64> {
-    let p = ee.position(poses);
+    point_jacobian(model, ee.body, &ee.position(poses), poses)
+}
+
+/// The positional Jacobian (3 x n) of a point fixed to body `body`, at world position `p`:
+/// column i is joint i's axis (x the lever arm for a rotary joint) when joint i moves that
+/// body, zero when it does not (a joint after it in the chain).
+pub fn point_jacobian(
+    model: &ArmModel,
+    body: usize,
+    p: &Vector3<f64>,
+    poses: &[Isometry3<f64>],
+) -> DMatrix<f64> {
     let mut jac = DMatrix::zeros(3, model.joints.len());
+    let mut moves = vec![false; model.joints.len()];
+    let mut b = body;
+    while let Some(i) = model.joints.iter().position(|j| j.child_body == b) {
+        moves[i] = true;
+        b = model.joints[i].parent_body;
+    }
     for (i, joint) in model.joints.iter().enumerate() {
+        if !moves[i] {
+            continue;
+        }
         let pose = &poses[joint.child_body];
         let axis = pose.rotation * joint.axis.into_inner();
         let column = match joint.kind {

@@ -137,6 +137,22 @@ pub struct ArmModel {
 }
 
 impl ArmModel {
+    /// The same arm with a point mass `mass` (kg) added to body `body` at `point` (body frame):
+    /// a payload. Mass, centre of mass and inertia combine by the parallel-axis theorem.
+    ///
+    /// # Panics
+    /// If `body` is not a body of the model.
+    pub fn with_point_mass(&self, body: usize, mass: f64, point: Vector3<f64>) -> ArmModel {
+        let mut model = self.clone();
+        let b = &mut model.bodies[body];
+        let (m, c, i) =
+            combine_parts(&[(b.mass, b.com, b.inertia), (mass, point, Matrix3::zeros())]);
+        b.mass = m;
+        b.com = c;
+        b.inertia = i;
+        model
+    }
+
     /// Total mass of the moving bodies plus the root.
     pub fn total_mass(&self) -> f64 {
         self.bodies.iter().map(|b| b.mass).sum()
@@ -202,4 +218,26 @@ impl ColliderSpec {
             parry_pose: to_parry_pose(&parry_pose),
         }
     }
+}
+
+/// A body's mass, centre of mass and inertia about it, from its links' parts.
+pub fn combine_parts(
+    parts: &[(f64, Vector3<f64>, Matrix3<f64>)],
+) -> (f64, Vector3<f64>, Matrix3<f64>) {
+    let mass: f64 = parts.iter().map(|(m, _, _)| m).sum();
+    let (com, inertia) = if mass > 0.0 {
+        let com = parts
+            .iter()
+            .fold(Vector3::zeros(), |acc, (m, c, _)| acc + c * *m)
+            / mass;
+        // Parallel-axis theorem about the body's centre of mass.
+        let inertia = parts.iter().fold(Matrix3::zeros(), |acc, (m, c, i)| {
+            let d = c - com;
+            acc + i + (Matrix3::identity() * d.dot(&d) - d * d.transpose()) * *m
+        });
+        (com, inertia)
+    } else {
+        (Vector3::zeros(), Matrix3::zeros())
+    };
+    (mass, com, inertia)
 }

@@ -18,7 +18,9 @@ use std::path::Path;
 use nalgebra::{Isometry3, Matrix3, Translation3, Unit, UnitQuaternion, Vector3};
 
 use super::ArmError;
-use super::model::{ArmModel, BodySpec, ColliderSpec, JointKind, JointSpec, LinkFrame, ShapeSpec};
+use super::model::{
+    ArmModel, BodySpec, ColliderSpec, JointKind, JointSpec, LinkFrame, ShapeSpec, combine_parts,
+};
 
 /// Deepest XML nesting accepted. Real URDFs nest about 5 levels.
 pub const MAX_XML_DEPTH: usize = 64;
@@ -843,26 +845,6 @@ fn link_colliders(
             shape_pose,
         ));
     }
-}
-
-/// A body's mass, centre of mass and inertia about it, from its links' parts.
-fn combine_parts(parts: &[(f64, Vector3<f64>, Matrix3<f64>)]) -> (f64, Vector3<f64>, Matrix3<f64>) {
-    let mass: f64 = parts.iter().map(|(m, _, _)| m).sum();
-    let (com, inertia) = if mass > 0.0 {
-        let com = parts
-            .iter()
-            .fold(Vector3::zeros(), |acc, (m, c, _)| acc + c * *m)
-            / mass;
-        // Parallel-axis theorem about the body's centre of mass.
-        let inertia = parts.iter().fold(Matrix3::zeros(), |acc, (m, c, i)| {
-            let d = c - com;
-            acc + i + (Matrix3::identity() * d.dot(&d) - d * d.transpose()) * *m
-        });
-        (com, inertia)
-    } else {
-        (Vector3::zeros(), Matrix3::zeros())
-    };
-    (mass, com, inertia)
 }
 
 /// The mesh file name as it may be shown: never resolved against the file system, so a

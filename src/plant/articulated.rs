@@ -107,6 +107,14 @@ pub struct ArticulatedPlant {
     engaged: Vec<usize>,
     columns: DMatrix<f64>,
     friction_impulse: Vec<f64>,
+    /// Per joint: the position a brake holds it at (a locked-joint fault), if engaged.
+    brakes: Vec<Option<f64>>,
+    /// The arm as built, and the payload per body.
+    base: Arc<ArmModel>,
+    payloads: super::Payloads,
+    /// External forces, and the torques with their generalized forces added (scratch).
+    external: Vec<super::ExternalForce>,
+    loaded_torques: Vec<f64>,
 }
 
 impl ArticulatedPlant {
@@ -122,6 +130,10 @@ impl ArticulatedPlant {
         super::check_gravity(&model, gravity)?;
         let n = model.joints.len();
         Ok(Self {
+            base: model.clone(),
+            payloads: super::Payloads::new(model.bodies.len()),
+            external: Vec::new(),
+            loaded_torques: vec![0.0; n],
             settings: settings.clone(),
             dynamics: Dynamics::new(model, gravity),
             q: vec![0.0; n],
@@ -131,6 +143,7 @@ impl ArticulatedPlant {
             engaged: Vec::with_capacity(n),
             columns: DMatrix::zeros(n, n),
             friction_impulse: vec![0.0; n],
+            brakes: vec![None; n],
         })
     }
 
@@ -148,18 +161,28 @@ impl ArticulatedPlant {
         let n = self.q.len();
         let model = self.dynamics.model().clone();
         let joints = &model.joints;
+        let brakes = std::mem::take(&mut self.brakes);
+        // A brake is a limit at the held position; a braked joint has no friction to overcome.
+        let limits = |i: usize| brakes[i].map(|b| (b, b)).or(joints[i].limits);
+        let friction = |i: usize| {
+            if brakes[i].is_some() {
+                0.0
+            } else {
+                joints[i].friction
+            }
+        };
         let mut engaged = std::mem::take(&mut self.engaged);
         engaged.clear();
         engaged.extend((0..n).filter(|&i| {
-            let j = &joints[i];
-            j.friction > 0.0
-                || j.limits.is_some_and(|(lo, hi)| {
+            friction(i) > 0.0
+                || limits(i).is_some_and(|(lo, hi)| {
                     let next = self.q[i] + h * self.qd[i];
                     next < lo || next > hi
                 })
         }));
         if engaged.is_empty() {
             self.engaged = engaged;
+            self.brakes = brakes;
             return;
         }
         // Columns of (M + h D)^-1 for the engaged joints.
@@ -170,12 +193,11 @@ impl ArticulatedPlant {
         self.friction_impulse.fill(0.0);
         for _ in 0..8 {
             for (k, &i) in engaged.iter().enumerate() {
-                let j = &joints[i];
                 let w = self.columns[(i, k)];
                 if w <= 0.0 {
                     continue;
                 }
-                if let Some((lo, hi)) = j.limits {
+                if let Some((lo, hi)) = limits(i) {
                     let next = self.q[i] + h * self.qd[i];
                     let target = if next > hi {
                         Some((hi - self.q[i]) / h)
@@ -191,8 +213,8 @@ impl ArticulatedPlant {
                         }
                     }
                 }
-                if j.friction > 0.0 {
-                    let bound = j.friction * h;
+                if friction(i) > 0.0 {
+                    let bound = friction(i) * h;
                     let old = self.friction_impulse[k];
                     let new = (old - self.qd[i] / w).clamp(-bound, bound);
                     let lambda = new - old;
@@ -204,6 +226,7 @@ impl ArticulatedPlant {
             }
         }
         self.engaged = engaged;
+        self.brakes = brakes;
     }
 
     /// Advances by `dt` in the settings' substeps with the current torques. Returns false if the
@@ -211,20 +234,43 @@ impl ArticulatedPlant {
     fn advance(&mut self, dt: f64) -> bool {
         let substeps = self.settings.substeps.max(1);
         let h = dt / substeps as f64;
-        let tau = std::mem::take(&mut self.torques);
+        let commanded = std::mem::take(&mut self.torques);
+        let mut loaded = std::mem::take(&mut self.loaded_torques);
         let mut ok = true;
         for _ in 0..substeps {
+            let tau: &[f64] = if self.external.is_empty() {
+                &commanded
+            } else {
+                self.with_external_forces(&commanded, &mut loaded);
+                &loaded
+            };
             ok = match self.settings.integrator {
-                Integrator::Euler => self.euler(&tau, h),
-                Integrator::Rk4 => self.rk4(&tau, h),
-                Integrator::ExplicitEuler => self.explicit_euler(&tau, h),
+                Integrator::Euler => self.euler(tau, h),
+                Integrator::Rk4 => self.rk4(tau, h),
+                Integrator::ExplicitEuler => self.explicit_euler(tau, h),
             };
             if !ok {
                 break;
             }
         }
-        self.torques = tau;
+        self.torques = commanded;
+        self.loaded_torques = loaded;
         ok
+    }
+
+    /// `tau` plus the external forces' generalized forces J^T F at the current configuration,
+    /// into `out` (held over the substep).
+    fn with_external_forces(&self, tau: &[f64], out: &mut [f64]) {
+        out.copy_from_slice(tau);
+        let poses = self.dynamics.poses();
+        let model = self.dynamics.model();
+        for f in &self.external {
+            let point = poses[f.body].transform_point(&f.point.into()).coords;
+            let jac = crate::arm::kinematics::point_jacobian(model, f.body, &point, poses);
+            for (i, t) in out.iter_mut().enumerate() {
+                *t += jac.column(i).dot(&f.force);
+            }
+        }
     }
 
     fn euler(&mut self, tau: &[f64], h: f64) -> bool {
@@ -256,8 +302,48 @@ impl ArticulatedPlant {
     /// impulse at the end of the step).
     fn acceleration(&mut self, tau: &[f64], out: &mut [f64]) -> bool {
         self.dynamics.set_configuration(&self.q);
-        self.dynamics
+        if !self
+            .dynamics
             .forward_dynamics_here(&self.qd, tau, Friction::Excluded, out)
+        {
+            return false;
+        }
+        if self.brakes.iter().any(Option::is_some) {
+            self.hold_braked(out);
+        }
+        true
+    }
+
+    /// The acceleration with every braked joint held (its qdd = 0), from the unconstrained one
+    /// and M's factor of the last forward dynamics: qdd += W lambda, W = M^-1 E (E the braked
+    /// joints' unit vectors), (E^T W) lambda = -E^T qdd (Gauss's principle: the brake torque
+    /// lambda is the least that holds them).
+    fn hold_braked(&mut self, qdd: &mut [f64]) {
+        let n = qdd.len();
+        let braked: Vec<usize> = (0..n).filter(|&i| self.brakes[i].is_some()).collect();
+        let m = braked.len();
+        let mut column = vec![0.0; n];
+        for (k, &b) in braked.iter().enumerate() {
+            column.fill(0.0);
+            column[b] = 1.0;
+            self.dynamics.solve_factored(&mut column);
+            for r in 0..n {
+                self.columns[(r, k)] = column[r];
+            }
+        }
+        let a = DMatrix::from_fn(m, m, |r, c| self.columns[(braked[r], c)]);
+        let mut lambda = nalgebra::DVector::from_fn(m, |r, _| -qdd[braked[r]]);
+        if let Some(chol) = nalgebra::linalg::Cholesky::new(a) {
+            chol.solve_mut(&mut lambda);
+            for (r, v) in qdd.iter_mut().enumerate() {
+                for k in 0..m {
+                    *v += self.columns[(r, k)] * lambda[k];
+                }
+            }
+        }
+        for &b in &braked {
+            qdd[b] = 0.0;
+        }
     }
 
     fn rk4(&mut self, tau: &[f64], h: f64) -> bool {
@@ -322,7 +408,7 @@ impl ArticulatedPlant {
         self.constraints(h);
         self.q.copy_from_slice(&k.q_end);
         for (i, j) in self.dynamics.model().joints.iter().enumerate() {
-            if let Some((lo, hi)) = j.limits {
+            if let Some((lo, hi)) = self.brakes[i].map(|b| (b, b)).or(j.limits) {
                 self.q[i] = self.q[i].clamp(lo, hi);
             }
         }
@@ -351,6 +437,25 @@ impl Plant for ArticulatedPlant {
 
     fn torques(&self) -> &[f64] {
         &self.torques
+    }
+
+    fn set_payload(&mut self, body: usize, payload: Option<(f64, nalgebra::Vector3<f64>)>) {
+        self.payloads.set(body, payload);
+        let gravity = *self.dynamics.gravity();
+        self.dynamics = Dynamics::new(
+            Arc::new(self.payloads.apply(&self.base)),
+            [gravity.x, gravity.y, gravity.z],
+        );
+        self.dynamics.set_configuration(&self.q);
+    }
+
+    fn set_external_forces(&mut self, forces: &[super::ExternalForce]) {
+        self.external.clear();
+        self.external.extend_from_slice(forces);
+    }
+
+    fn set_brake(&mut self, joint: usize, engaged: bool) {
+        self.brakes[joint] = engaged.then_some(self.q[joint]);
     }
 
     /// A singular mass matrix (a degenerate model) leaves the state unchanged; the runner's

@@ -8,7 +8,9 @@
 //! the one the settings name; nothing outside this folder knows which it is, and no rapier type
 //! leaves it. Nothing here knows about sensors or active inference.
 
+pub mod actuators;
 mod articulated;
+pub mod disturbances;
 mod open_loop;
 mod rapier;
 
@@ -18,7 +20,11 @@ use std::sync::Arc;
 use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
 
+pub use actuators::{
+    ActuatorFault, ActuatorFaultKind, ActuatorFaultSpec, Actuators, JointSelection,
+};
 pub use articulated::{ArticulatedPlant, ArticulatedSettings, Integrator, MAX_SUBSTEPS};
+pub use disturbances::{Disturbance, DisturbanceKind, DisturbanceSpec, Disturbances};
 pub use open_loop::{OpenLoopSample, open_loop_header, run_open_loop};
 pub use rapier::{MAX_SOLVER_ITERATIONS, RapierPlant, RapierSettings};
 
@@ -63,11 +69,66 @@ pub trait Plant: ArmPose + Send {
     /// Advances the simulation by `dt` seconds with the current torques.
     fn step(&mut self, dt: f64);
 
+    /// Puts a point mass (kg, at a point in the body's frame) on body `body`, replacing the one
+    /// set there before; `None` takes it off. A payload picked up or dropped: the plant's
+    /// [`ArmPose::model`] is the arm with its payloads.
+    ///
+    /// # Panics
+    /// If `body` is not a body of the arm, or is the root.
+    fn set_payload(&mut self, body: usize, payload: Option<(f64, nalgebra::Vector3<f64>)>);
+
+    /// The external forces acting from the next step on, replacing those set before (a push on
+    /// a link; empty: none).
+    fn set_external_forces(&mut self, forces: &[ExternalForce]);
+
+    /// Engages (`true`) a brake on `joint` (0-based) that holds it at its current position,
+    /// whatever the torques, until released (`false`); the rest of the arm moves on with the
+    /// joint held. A locked-joint actuator fault ([`actuators`]).
+    ///
+    /// # Panics
+    /// If `joint` is not a joint of the arm.
+    fn set_brake(&mut self, joint: usize, engaged: bool);
+
     /// Every body's world pose, into `out` (one per body).
     fn body_poses_into(&self, out: &mut [Isometry3<f64>]) {
         for (b, pose) in out.iter_mut().enumerate() {
             *pose = self.body_pose(b);
         }
+    }
+}
+
+/// A force on a body: where (a point fixed to the body, in its frame) and how much (N, world
+/// frame).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ExternalForce {
+    pub body: usize,
+    pub point: nalgebra::Vector3<f64>,
+    pub force: nalgebra::Vector3<f64>,
+}
+
+/// The payload on each body of a plant's arm.
+#[derive(Clone, Debug)]
+pub(crate) struct Payloads(Vec<Option<(f64, nalgebra::Vector3<f64>)>>);
+
+impl Payloads {
+    pub fn new(bodies: usize) -> Self {
+        Self(vec![None; bodies])
+    }
+
+    pub fn set(&mut self, body: usize, payload: Option<(f64, nalgebra::Vector3<f64>)>) {
+        assert!(body > 0 && body < self.0.len(), "a moving body of the arm");
+        self.0[body] = payload;
+    }
+
+    /// The arm `base` with these payloads.
+    pub fn apply(&self, base: &ArmModel) -> ArmModel {
+        let mut model = base.clone();
+        for (b, p) in self.0.iter().enumerate() {
+            if let Some((mass, point)) = p {
+                model = model.with_point_mass(b, *mass, *point);
+            }
+        }
+        model
     }
 }
 
@@ -200,11 +261,12 @@ fn check_gravity(model: &ArmModel, gravity: [f64; 3]) -> Result<(), PlantError> 
     }
 }
 
-/// `tau` clamped to each joint's effort limit, into `out`.
+/// `tau` clamped to each joint's URDF effort limit (where it has one), into `out`: what
+/// [`Plant::set_torques`] applies.
 ///
 /// # Panics
 /// If `tau` does not have one entry per joint.
-fn clamp_to_effort(model: &ArmModel, tau: &[f64], out: &mut [f64]) {
+pub fn clamp_to_effort(model: &ArmModel, tau: &[f64], out: &mut [f64]) {
     assert_eq!(tau.len(), model.joints.len(), "tau has the wrong length");
     for ((out, &t), joint) in out.iter_mut().zip(tau).zip(&model.joints) {
         *out = match joint.effort {

@@ -101,7 +101,13 @@ fn x_to(axis: &Vector3<f64>) -> UnitQuaternion<f64> {
 
 /// A URDF arm simulated in rapier, torque-driven.
 pub struct RapierPlant {
+    /// The arm with its payloads (the truth).
     model: Arc<ArmModel>,
+    /// The arm as built, and the payload (mass, point in the body frame) per body.
+    base: Arc<ArmModel>,
+    payloads: super::Payloads,
+    /// External forces: (body, point in the body frame, world force).
+    external: Vec<super::ExternalForce>,
     world: PhysicsWorld,
     bodies: Vec<RigidBodyHandle>,
     joints: Vec<SimJoint>,
@@ -196,6 +202,9 @@ impl RapierPlant {
         }
         let n = joints.len();
         Ok(Self {
+            base: model.clone(),
+            payloads: super::Payloads::new(model.bodies.len()),
+            external: Vec::new(),
             model,
             world,
             bodies,
@@ -222,24 +231,8 @@ fn insert_bodies(world: &mut PhysicsWorld, model: &ArmModel) -> Vec<RigidBodyHan
         let builder = if b == 0 {
             RigidBodyBuilder::fixed()
         } else {
-            let i = &spec.inertia;
-            let mprops = MassProperties::with_inertia_matrix(
-                to_dvec(&spec.com),
-                spec.mass,
-                rapier3d_f64::glamx::DMat3::from_cols_array(&[
-                    i[(0, 0)],
-                    i[(1, 0)],
-                    i[(2, 0)],
-                    i[(0, 1)],
-                    i[(1, 1)],
-                    i[(2, 1)],
-                    i[(0, 2)],
-                    i[(1, 2)],
-                    i[(2, 2)],
-                ]),
-            );
             RigidBodyBuilder::dynamic()
-                .additional_mass_properties(mprops)
+                .additional_mass_properties(mass_properties(spec))
                 .can_sleep(false)
                 .linear_damping(0.0)
                 .angular_damping(0.0)
@@ -248,6 +241,26 @@ fn insert_bodies(world: &mut PhysicsWorld, model: &ArmModel) -> Vec<RigidBodyHan
         bodies.push(world.insert_body(builder));
     }
     bodies
+}
+
+/// A body's mass, centre of mass and inertia in rapier's type.
+fn mass_properties(spec: &crate::arm::BodySpec) -> MassProperties {
+    let i = &spec.inertia;
+    MassProperties::with_inertia_matrix(
+        to_dvec(&spec.com),
+        spec.mass,
+        rapier3d_f64::glamx::DMat3::from_cols_array(&[
+            i[(0, 0)],
+            i[(1, 0)],
+            i[(2, 0)],
+            i[(0, 1)],
+            i[(1, 1)],
+            i[(2, 1)],
+            i[(0, 2)],
+            i[(1, 2)],
+            i[(2, 2)],
+        ]),
+    )
 }
 
 impl Plant for RapierPlant {
@@ -305,6 +318,49 @@ impl Plant for RapierPlant {
         &self.torques
     }
 
+    fn set_payload(&mut self, body: usize, payload: Option<(f64, Vector3<f64>)>) {
+        self.payloads.set(body, payload);
+        self.model = Arc::new(self.payloads.apply(&self.base));
+        let spec = &self.model.bodies[body];
+        self.world.bodies[self.bodies[body]]
+            .set_additional_mass_properties(mass_properties(spec), true);
+    }
+
+    fn set_external_forces(&mut self, forces: &[super::ExternalForce]) {
+        self.external.clear();
+        self.external.extend_from_slice(forces);
+    }
+
+    /// A brake is a joint limit at the held position (rapier's multibody limit constraint);
+    /// releasing it restores the URDF's limits, or none.
+    fn set_brake(&mut self, joint: usize, engaged: bool) {
+        let (mut q, mut qd) = (vec![0.0; self.joints.len()], vec![0.0; self.joints.len()]);
+        self.read_state(&mut q, &mut qd);
+        let sim = &self.joints[joint];
+        let axis = match sim.kind {
+            JointKind::Prismatic => JointAxis::LinX,
+            _ => JointAxis::AngX,
+        };
+        let spec_limits = self.model.joints[joint].limits;
+        let mb = self
+            .world
+            .multibody_joints
+            .get_multibody_mut(self.multibody)
+            .expect("the arm is one multibody");
+        let data = &mut mb.link_mut(sim.link).expect("link exists").joint.data;
+        match (engaged, spec_limits) {
+            (true, _) => {
+                data.set_limits(axis, [q[joint], q[joint]]);
+            }
+            (false, Some((lower, upper))) => {
+                data.set_limits(axis, [lower, upper]);
+            }
+            (false, None) => {
+                data.limit_axes.remove(axis.into());
+            }
+        }
+    }
+
     fn step(&mut self, dt: f64) {
         for &h in &self.bodies {
             if let Some(rb) = self.world.bodies.get_mut(h) {
@@ -328,6 +384,15 @@ impl Plant for RapierPlant {
                     self.world.bodies[joint.parent].add_torque(-world_axis * tau, false);
                 }
             }
+        }
+        for f in &self.external {
+            let pose = to_isometry(self.world.bodies[self.bodies[f.body]].position());
+            let point = pose.transform_point(&f.point.into()).coords;
+            self.world.bodies[self.bodies[f.body]].add_force_at_point(
+                to_dvec(&f.force),
+                to_dvec(&point),
+                false,
+            );
         }
         self.world.integration_parameters.dt = dt;
         self.world.step();

@@ -16,6 +16,7 @@
 
 pub mod detector;
 pub mod learners;
+pub mod momentum;
 pub mod supervised;
 
 use nalgebra::DMatrix;
@@ -26,6 +27,7 @@ pub use detector::{
     Isolation,
 };
 pub use learners::{Bayes, Fixed, Gradient, Window};
+pub use momentum::{MomentumAlarm, MomentumConfig, MomentumMonitor, MomentumObserver};
 pub use supervised::{Deterministic, GatedLearning, Oracle, PerGroup};
 
 use crate::estimation::Estimate;

@@ -27,9 +27,7 @@ impl Observer for InnovationSums<'_> {
 /// Runs `runs` healthy seeds (in parallel, reduced in seed order: the result does not depend on
 /// the thread count) and returns the per-tick innovation statistics.
 pub fn calibrate(setup: &RunSetup, runs: usize) -> Result<Calibration, ScenarioError> {
-    let mut healthy = setup.clone();
-    healthy.faults.clear();
-    healthy.loaded.scenario.faults.clear();
+    let healthy = setup.healthy();
     let sc = setup.scenario();
     let layout = setup.layout;
     let ticks = sc.ticks() as usize;
@@ -242,6 +240,67 @@ fn cache_dir_from(var: impl Fn(&str) -> Option<std::ffi::OsString>) -> Option<st
     absolute("AIFT_CACHE_DIR")
         .or_else(|| absolute("XDG_CACHE_HOME").map(|d| d.join("aift")))
         .or_else(|| absolute("HOME").map(|h| h.join(".cache").join("aift")))
+}
+
+/// Seeds of the momentum observer's calibration runs start here (apart from the detector's).
+pub const MOMENTUM_SEED_BASE: u64 = 1 << 41;
+
+/// Smallest momentum threshold (N m): a noise-free run on the plant's own model shows residuals
+/// of rounding size only.
+pub const MOMENTUM_THRESHOLD_FLOOR: f64 = 1e-6;
+
+/// The momentum observer's thresholds per joint: `[momentum] margin` x the largest |r_j| over
+/// `calibration_runs` healthy runs (`no-ft`, the scenario without faults, each run's seed
+/// drawing its own model error), at least [`MOMENTUM_THRESHOLD_FLOOR`]. In parallel, reduced
+/// in seed order.
+pub fn calibrate_momentum(setup: &RunSetup) -> Result<Vec<f64>, ScenarioError> {
+    let mut healthy = setup.healthy();
+    healthy.momentum_thresholds = None;
+    let config = &setup.scenario().momentum;
+    let ticks = setup.scenario().ticks();
+    let runs: Vec<Result<Vec<f64>, ScenarioError>> = (0..config.calibration_runs as u64)
+        .into_par_iter()
+        .map(|i| {
+            let result = super::runner::Run::new(&healthy, Method::NoFt)
+                .seed(MOMENTUM_SEED_BASE + i)
+                .execute()?;
+            if result.ticks_run < ticks {
+                return Err(ScenarioError::Calibration {
+                    path: setup.loaded.path.clone(),
+                    message: format!(
+                        "healthy momentum calibration run {i} ended at tick {}; the scenario \
+                         does not run healthy",
+                        result.ticks_run
+                    ),
+                });
+            }
+            Ok(result
+                .momentum
+                .expect("the observer runs when enabled")
+                .largest)
+        })
+        .collect();
+    let n = setup.model.joints.len();
+    let mut largest = vec![0.0f64; n];
+    for run in runs {
+        for (l, v) in largest.iter_mut().zip(run?) {
+            *l = l.max(v);
+        }
+    }
+    if let Some(j) = largest.iter().position(|v| !v.is_finite()) {
+        return Err(ScenarioError::Calibration {
+            path: setup.loaded.path.clone(),
+            message: format!(
+                "the healthy momentum residual of joint {} is not finite: the estimators' model \
+                 cannot explain this arm's motion",
+                j + 1
+            ),
+        });
+    }
+    Ok(largest
+        .iter()
+        .map(|l| (config.margin * l).max(MOMENTUM_THRESHOLD_FLOOR))
+        .collect())
 }
 
 #[cfg(test)]

@@ -73,9 +73,18 @@ pub struct Scenario {
     /// Settings of `hybrid`.
     #[serde(default)]
     pub hybrid: crate::estimation::hybrid::HybridConfig,
+    /// The generalized momentum observer, run beside any method (actuator faults, contacts).
+    #[serde(default)]
+    pub momentum: crate::precision::MomentumConfig,
     /// Sensor faults, any number, overlapping or not.
     #[serde(default)]
     pub faults: Vec<FaultSpec>,
+    /// Actuator faults (between the commanded torque and the joint), any number.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub actuator_faults: Vec<crate::plant::ActuatorFaultSpec>,
+    /// Disturbances that are not faults (a payload, a push), any number.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub disturbances: Vec<crate::plant::DisturbanceSpec>,
 }
 
 /// Longest run, in ticks: 1e9 (about 11.6 days of simulated time at 1 kHz, hours of wall time).
@@ -389,6 +398,7 @@ impl Scenario {
         self.detector.validate().map_err(within("detector"))?;
         self.kalman.validate().map_err(within("kalman"))?;
         self.hybrid.validate().map_err(within("hybrid"))?;
+        self.momentum.validate().map_err(within("momentum"))?;
         if self.hybrid.prior.may_propagate() && self.belief.update != UpdateScheme::GaussNewton {
             return Err(SettingError::new(
                 "hybrid.prior",
@@ -404,6 +414,22 @@ impl Scenario {
         for (i, f) in self.faults.iter().enumerate() {
             f.to_fault(layout, self.dt)
                 .map_err(|e| e.within(&format!("faults[{i}]")))?;
+        }
+        if self.actuator_faults.len() > MAX_FAULTS {
+            return Err(SettingError::new(
+                "actuator_faults",
+                format!("at most {MAX_FAULTS}"),
+            ));
+        }
+        if self.disturbances.len() > MAX_FAULTS {
+            return Err(SettingError::new(
+                "disturbances",
+                format!("at most {MAX_FAULTS}"),
+            ));
+        }
+        for (i, f) in self.actuator_faults.iter().enumerate() {
+            f.to_fault(layout.n_joints(), self.dt)
+                .map_err(|e| e.within(&format!("actuator_faults[{i}]")))?;
         }
         Ok(())
     }

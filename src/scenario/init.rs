@@ -682,7 +682,10 @@ fn scenario_value(
         detector: Default::default(),
         kalman: Default::default(),
         hybrid: Default::default(),
+        momentum: Default::default(),
         faults: Vec::new(),
+        actuator_faults: Vec::new(),
+        disturbances: Vec::new(),
     }
 }
 

@@ -61,6 +61,61 @@ pub struct FaultOutcome {
     pub mse_during: Option<f64>,
 }
 
+/// How one actuator fault of the scenario went, for methods that judge sensors only: the
+/// sensor alarms it drew (each one a misattribution) and the belief's error while it acted.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ActuatorOutcome {
+    /// `motor2`, `motor1+motor3`.
+    pub label: String,
+    /// The kind (`locked`, `effectiveness`, ...).
+    pub kind: &'static str,
+    pub start: f64,
+    pub end: Option<f64>,
+    /// The joints whose actuators fail (0-based).
+    pub joints: Vec<usize>,
+    /// Sensor detections from its start until [`FALSE_ALARM_GRACE`] after its end (no sensor
+    /// is at fault for them unless a sensor fault acts too).
+    pub sensor_alarms: usize,
+    /// MSE of (mu - q) over its joints while it acts.
+    pub mse_during: Option<f64>,
+    /// The momentum observer's first alarm from its start (before its end), when it runs.
+    pub momentum_detected_at: Option<f64>,
+    pub momentum_delay: Option<f64>,
+    /// The joint (0-based) that alarm named.
+    pub momentum_joint: Option<usize>,
+    /// Whether that joint is one of the fault's.
+    pub momentum_isolation_correct: Option<bool>,
+}
+
+/// How one disturbance (payload, push) went: the alarms it drew. Neither a sensor nor an
+/// actuator is at fault, so every sensor alarm is a false one; a momentum alarm is a true
+/// detection of an unexplained torque, but not of an actuator fault.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DisturbanceOutcome {
+    /// `payload on ee`, `push on link4`.
+    pub label: String,
+    pub kind: &'static str,
+    pub start: f64,
+    pub end: Option<f64>,
+    /// Sensor detections from its start until [`FALSE_ALARM_GRACE`] after its end.
+    pub sensor_alarms: usize,
+    /// Momentum alarms over the same window (when the observer runs).
+    pub momentum_alarms: usize,
+}
+
+/// What the momentum observer found in a run (`[momentum] enabled`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct MomentumSummary {
+    /// Thresholds per joint (None in the calibration runs that set them).
+    pub thresholds: Option<Vec<f64>>,
+    /// The largest |r_j| per joint over the run.
+    pub largest: Vec<f64>,
+    /// Alarms: time (s) and joint (0-based), in time order.
+    pub alarms: Vec<(f64, usize)>,
+    /// Alarms while no actuator fault acted (nor within [`FALSE_ALARM_GRACE`] after one).
+    pub false_alarms: usize,
+}
+
 /// The numbers of one run.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RunResult {
@@ -100,6 +155,12 @@ pub struct RunResult {
     pub detections: Vec<DetectionEvent>,
     /// One entry per fault of the scenario, in file order.
     pub faults: Vec<FaultOutcome>,
+    /// One entry per actuator fault of the scenario (those that act), in file order.
+    pub actuator_faults: Vec<ActuatorOutcome>,
+    /// One entry per disturbance of the scenario (those that act), in file order.
+    pub disturbances: Vec<DisturbanceOutcome>,
+    /// The momentum observer's findings, when it runs.
+    pub momentum: Option<MomentumSummary>,
     /// Health per channel at the end.
     pub final_health: Vec<f64>,
     /// Lowest health per channel over the last 5 s.
@@ -143,6 +204,9 @@ pub struct RunMetrics {
     dt: f64,
     faults: Vec<Fault>,
     windows: Vec<FaultWindow>,
+    actuator_faults: Vec<crate::plant::ActuatorFault>,
+    actuator_windows: Vec<FaultWindow>,
+    disturbances: Vec<crate::plant::Disturbance>,
     faulty_channels: Vec<usize>,
     faulty_joints: Vec<usize>,
     first_fault: Option<u64>,
@@ -204,9 +268,34 @@ impl RunMetrics {
                 }
             })
             .collect();
+        let actuator_faults: Vec<crate::plant::ActuatorFault> = setup
+            .actuator_faults
+            .iter()
+            .filter(|f| f.start_tick(dt) < ticks)
+            .cloned()
+            .collect();
+        let actuator_windows = actuator_faults
+            .iter()
+            .map(|f| FaultWindow {
+                start: f.start_tick(dt),
+                end: f.end_tick(dt),
+                joints: f.joints.clone(),
+                sq: 0.0,
+                count: 0,
+            })
+            .collect();
+        let disturbances = setup
+            .disturbances
+            .iter()
+            .filter(|d| crate::tick_at(d.start, dt) < ticks)
+            .cloned()
+            .collect();
         Self {
             layout,
             dt,
+            actuator_faults,
+            actuator_windows,
+            disturbances,
             first_fault: acting.iter().map(|f| f.start_tick(dt)).min(),
             faults: acting,
             windows,
@@ -232,14 +321,18 @@ impl RunMetrics {
         }
     }
 
-    /// The run's result, given how it ended, the final joint positions and the detector's state.
+    /// The run's result, given how it ended, the final joint positions, and the detector's and
+    /// the momentum observer's states.
     pub fn finish(
         self,
         method: &str,
         seed: u64,
         outcome: Outcome,
         q_final: &[f64],
-        detection: Option<&Detection>,
+        (detection, momentum): (
+            Option<&Detection>,
+            Option<&crate::precision::MomentumMonitor>,
+        ),
         wall_seconds: f64,
     ) -> RunResult {
         let n = self.layout.n_joints();
@@ -276,6 +369,39 @@ impl RunMetrics {
             .map(|(_, c)| c.iter().all(|c| self.faulty_channels.contains(c)));
         let false_alarms = self.false_alarms(&events);
         let faults = self.fault_outcomes(&events);
+        let momentum_alarms: Vec<(u64, usize)> = momentum
+            .map(|m| m.alarms().iter().map(|a| (a.tick, a.joint)).collect())
+            .unwrap_or_default();
+        let actuator_faults = self.actuator_outcomes(&events, &momentum_alarms);
+        let within = |alarms: &mut dyn Iterator<Item = u64>, d: &crate::plant::Disturbance| {
+            let grace = (FALSE_ALARM_GRACE / dt).round() as u64;
+            let start = crate::tick_at(d.start, dt);
+            let end = d.end.map(|e| crate::tick_at(e, dt) + grace);
+            alarms
+                .filter(|k| *k >= start && end.is_none_or(|e| *k < e))
+                .count()
+        };
+        let disturbances = self
+            .disturbances
+            .iter()
+            .map(|d| DisturbanceOutcome {
+                label: d.label.clone(),
+                kind: d.kind.name(),
+                start: d.start,
+                end: d.end,
+                sensor_alarms: within(&mut events.iter().map(|(k, _)| *k), d),
+                momentum_alarms: within(&mut momentum_alarms.iter().map(|(k, _)| *k), d),
+            })
+            .collect();
+        let momentum = momentum.map(|m| MomentumSummary {
+            thresholds: m.thresholds().map(<[f64]>::to_vec),
+            largest: m.largest().to_vec(),
+            alarms: momentum_alarms
+                .iter()
+                .map(|&(k, j)| (k as f64 * dt, j))
+                .collect(),
+            false_alarms: self.momentum_false_alarms(&momentum_alarms),
+        });
         let detections = events
             .iter()
             .take(MAX_DETECTIONS)
@@ -305,6 +431,9 @@ impl RunMetrics {
             false_alarms,
             detections,
             faults,
+            actuator_faults,
+            disturbances,
+            momentum,
             final_health: self.health,
             min_health_last_5s: self.min_health_last,
             channels: self.layout.names(),
@@ -375,6 +504,57 @@ impl RunMetrics {
             .count()
     }
 
+    /// How each actuator fault went: the sensor alarms within it (and the grace after), the
+    /// belief's MSE on its joints.
+    fn actuator_outcomes(
+        &self,
+        events: &[(u64, Vec<usize>)],
+        momentum: &[(u64, usize)],
+    ) -> Vec<ActuatorOutcome> {
+        let grace = (FALSE_ALARM_GRACE / self.dt).round() as u64;
+        let dt = self.dt;
+        self.actuator_faults
+            .iter()
+            .zip(&self.actuator_windows)
+            .map(|(f, w)| {
+                let hit = momentum
+                    .iter()
+                    .find(|(k, _)| *k >= w.start && w.end.is_none_or(|e| *k < e));
+                (f, w, hit)
+            })
+            .map(|(f, w, hit)| ActuatorOutcome {
+                momentum_detected_at: hit.map(|(k, _)| *k as f64 * dt),
+                momentum_delay: hit.map(|(k, _)| (*k - w.start) as f64 * dt),
+                momentum_joint: hit.map(|(_, j)| *j),
+                momentum_isolation_correct: hit.map(|(_, j)| f.joints.contains(j)),
+                label: f.label.clone(),
+                kind: f.kind.name(),
+                start: f.start,
+                end: f.end,
+                joints: f.joints.clone(),
+                sensor_alarms: events
+                    .iter()
+                    .filter(|(k, _)| *k >= w.start && w.end.is_none_or(|e| *k < e + grace))
+                    .count(),
+                mse_during: (w.count > 0).then(|| w.sq / (w.count as f64 * w.joints.len() as f64)),
+            })
+            .collect()
+    }
+
+    /// Momentum alarms while no actuator fault acts (nor within the grace after one ended).
+    fn momentum_false_alarms(&self, alarms: &[(u64, usize)]) -> usize {
+        let grace = (FALSE_ALARM_GRACE / self.dt).round() as u64;
+        alarms
+            .iter()
+            .filter(|(k, _)| {
+                !self
+                    .actuator_windows
+                    .iter()
+                    .any(|w| *k >= w.start && w.end.is_none_or(|e| *k < e + grace))
+            })
+            .count()
+    }
+
     /// How each fault went: the first detection within it, its isolation, the MSE while it acts.
     fn fault_outcomes(&self, events: &[(u64, Vec<usize>)]) -> Vec<FaultOutcome> {
         let dt = self.dt;
@@ -418,7 +598,7 @@ impl Observer for RunMetrics {
         if post {
             self.post_count += 1;
         }
-        for w in &mut self.windows {
+        for w in self.windows.iter_mut().chain(&mut self.actuator_windows) {
             if k >= w.start && w.end.is_none_or(|e| k < e) {
                 for &j in &w.joints {
                     let e = r.mu[j] - r.q[j];

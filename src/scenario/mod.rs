@@ -27,7 +27,8 @@ pub use config::{GpConfig, MAX_TICKS, PrecisionConfig, RobotConfig, Scenario, Ta
 pub use load::{DEFAULT_SCENARIO_NAME, Layer, LoadedScenario, parse_scenario, scenario_schema};
 pub use method::Method;
 pub use metrics::{
-    ChatterMonitor, Chattering, FaultOutcome, RunMetrics, RunResult, StepInfo, step_info,
+    ActuatorOutcome, ChatterMonitor, Chattering, DisturbanceOutcome, FaultOutcome, MomentumSummary,
+    RunMetrics, RunResult, StepInfo, step_info,
 };
 pub use reference::scenario_reference_markdown;
 pub use runner::{

@@ -117,6 +117,9 @@ pub struct TickRecord<'a> {
     pub target: &'a [f64],
     /// The torques commanded this tick (before the plant's effort limits).
     pub torques: &'a [f64],
+    /// The torques the joints receive this tick: the commanded ones after the effort limits
+    /// and any actuator fault (what the plant steps with).
+    pub applied: &'a [f64],
     pub readings: &'a Readings,
     /// The precision each channel entered this tick's update with.
     pub precisions: &'a [f64],
@@ -279,7 +282,18 @@ pub struct Simulation {
     precisions: Vec<f64>,
     q: Vec<f64>,
     qd: Vec<f64>,
+    /// Actuator faults between the commanded torques and the joints.
+    actuators: crate::plant::Actuators,
+    /// Payloads and pushes.
+    disturbances: crate::plant::Disturbances,
+    /// What the estimators take as applied over the last step: the commanded torques clamped to
+    /// the effort limits (they do not know of actuator faults).
+    believed_last: Vec<f64>,
+    /// This tick's commanded torques clamped to the effort limits, and what the joints receive.
+    believed: Vec<f64>,
     applied: Vec<f64>,
+    /// The momentum observer beside the method (`[momentum] enabled`).
+    momentum: Option<crate::precision::MomentumMonitor>,
     torques: Vec<f64>,
     free_energy: f64,
     /// The belief before this tick's update, for a law that reads it (`controller.belief =
@@ -357,7 +371,26 @@ impl Simulation {
             nominal,
             q: vec![0.0; n],
             qd: vec![0.0; n],
+            actuators: crate::plant::Actuators::new(&setup.actuator_faults, n, dt),
+            disturbances: crate::plant::Disturbances::new(
+                &setup.disturbances,
+                setup.model.bodies.len(),
+                dt,
+            ),
+            believed_last: vec![0.0; n],
+            believed: vec![0.0; n],
             applied: vec![0.0; n],
+            momentum: sc.momentum.enabled.then(|| {
+                crate::precision::MomentumMonitor::new(
+                    crate::precision::MomentumObserver::new(
+                        setup.estimator_model(seed),
+                        sc.robot.gravity,
+                        sc.momentum.gain,
+                    ),
+                    setup.momentum_thresholds.as_deref().cloned(),
+                    (sc.momentum.dwell / dt).round() as u64,
+                )
+            }),
             torques: vec![0.0; n],
             free_energy: f64::NAN,
             previous_mu: vec![0.0; n],
@@ -397,6 +430,12 @@ impl Simulation {
     /// The torques commanded at the current tick.
     pub fn torques(&self) -> &[f64] {
         &self.torques
+    }
+
+    /// The torques the joints receive at the current tick (after effort limits and actuator
+    /// faults).
+    pub fn applied(&self) -> &[f64] {
+        &self.applied
     }
 
     /// The control law's integral torque per joint after the last [`Self::decide`].
@@ -440,7 +479,7 @@ impl Simulation {
             tick: k,
             readings: &self.readings,
             precisions: &self.precisions,
-            applied_torques: &self.applied,
+            applied_torques: &self.believed_last,
         });
         let finite = estimate.finite;
         let belief_energy = estimate.free_energy;
@@ -457,6 +496,13 @@ impl Simulation {
             self.torques.copy_from_slice(self.control.torques());
         }
         self.free_energy = belief_energy.map_or(f64::NAN, |f| f + self.control.free_energy());
+        self.actuators.deliver(
+            k,
+            self.arm.model(),
+            &self.torques,
+            &mut self.believed,
+            &mut self.applied,
+        );
         self.precision.update(&PrecisionInput {
             tick: k,
             dt: self.dt,
@@ -485,6 +531,7 @@ impl Simulation {
             mu_p: self.estimator.mu_p(),
             target: &self.targets[self.target].1,
             torques: &self.torques,
+            applied: &self.applied,
             readings: &self.readings,
             precisions: &estimate.precisions_used,
             nominal: &self.nominal,
@@ -495,18 +542,36 @@ impl Simulation {
     }
 
     /// Steps the plant one tick with the decided torques, or with `torques` when given
-    /// (clamped to the URDF's effort limits either way).
+    /// (clamped to the URDF's effort limits either way, and through the scenario's actuator
+    /// faults).
     ///
     /// # Panics
     /// If [`Self::decide`] has not run for this tick, or `torques` has the wrong length.
     pub fn actuate(&mut self, torques: Option<&[f64]>) {
         assert!(self.decided, "actuate() before decide()");
-        match torques {
-            Some(u) => self.arm.set_torques(u),
-            None => self.arm.set_torques(&self.torques),
+        if let Some(u) = torques {
+            self.actuators.deliver(
+                self.tick,
+                self.arm.model(),
+                u,
+                &mut self.believed,
+                &mut self.applied,
+            );
         }
+        if let Some(m) = &mut self.momentum {
+            m.update(
+                self.tick,
+                self.estimator.mu(),
+                self.estimator.mu_p(),
+                &self.believed,
+                self.dt,
+            );
+        }
+        self.actuators.set_brakes(self.tick, self.arm.as_mut());
+        self.disturbances.apply(self.tick, self.arm.as_mut());
+        self.arm.set_torques(&self.applied);
         self.arm.step(self.dt);
-        self.applied.copy_from_slice(self.arm.torques());
+        self.believed_last.copy_from_slice(&self.believed);
         self.tick += 1;
         self.decided = false;
     }
@@ -514,6 +579,11 @@ impl Simulation {
     /// The detector's state, for methods that run one.
     pub fn detection(&self) -> Option<&Detection> {
         self.precision.detection()
+    }
+
+    /// The momentum observer, when the scenario runs one.
+    pub fn momentum(&self) -> Option<&crate::precision::MomentumMonitor> {
+        self.momentum.as_ref()
     }
 }
 
@@ -679,6 +749,13 @@ impl<'a> Run<'a> {
         observers.finish(&outcome);
         extra.finish(&outcome);
         let (q, _) = sim.arm().state();
-        Ok(metrics.finish(&label, seed, outcome, &q, sim.detection(), wall_seconds))
+        Ok(metrics.finish(
+            &label,
+            seed,
+            outcome,
+            &q,
+            (sim.detection(), sim.momentum()),
+            wall_seconds,
+        ))
     }
 }

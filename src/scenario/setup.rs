@@ -79,6 +79,13 @@ pub struct RunSetup {
     pub layout: ChannelLayout,
     pub gp: Arc<GpModel>,
     pub faults: Vec<Fault>,
+    /// Actuator faults, checked against the arm.
+    pub actuator_faults: Vec<crate::plant::ActuatorFault>,
+    /// Disturbances (payloads, pushes), checked against the arm.
+    pub disturbances: Vec<crate::plant::Disturbance>,
+    /// The momentum observer's thresholds per joint (`[momentum] enabled`), calibrated on
+    /// healthy runs when the setup is prepared ([`super::calibrate::calibrate_momentum`]).
+    pub momentum_thresholds: Option<Arc<Vec<f64>>>,
     /// How the GP was obtained, for reports.
     pub gp_source: GpSource,
     /// Legitimate but odd settings (a target or fault after the run's end), for stderr.
@@ -138,10 +145,26 @@ impl RunSetup {
                 message: e.message,
             })?;
         let ee = end_effector(&loaded, &model)?;
+        let mut disturbances = Vec::with_capacity(sc.disturbances.len());
+        for (i, d) in sc.disturbances.iter().enumerate() {
+            disturbances.push(
+                d.to_disturbance(&model)
+                    .map_err(|e| ScenarioError::Invalid {
+                        path: loaded.path.clone(),
+                        field: format!("disturbances[{i}].{}", e.field),
+                        message: e.message,
+                    })?,
+            );
+        }
         let faults: Vec<Fault> = sc
             .faults
             .iter()
             .map(|f| f.to_fault(&layout, sc.dt).expect("validated"))
+            .collect();
+        let actuator_faults = sc
+            .actuator_faults
+            .iter()
+            .map(|f| f.to_fault(n, sc.dt).expect("validated"))
             .collect();
         let (gp, gp_source) = match &sc.gp.model {
             Some(rel) => {
@@ -176,16 +199,37 @@ impl RunSetup {
             }
         };
         let warnings = late_settings(&loaded.scenario, &faults);
-        Ok(Self {
+        let mut setup = Self {
             model: Arc::new(model),
             ee,
             layout,
             gp: Arc::new(gp),
             faults,
+            actuator_faults,
+            disturbances,
+            momentum_thresholds: None,
             gp_source,
             loaded,
             warnings,
-        })
+        };
+        if setup.scenario().momentum.enabled {
+            let thresholds = super::calibrate::calibrate_momentum(&setup)?;
+            setup.momentum_thresholds = Some(Arc::new(thresholds));
+        }
+        Ok(setup)
+    }
+
+    /// The same setup without faults (sensor and actuator) and disturbances: what calibration
+    /// and the healthy benchmarks run.
+    pub fn healthy(&self) -> Self {
+        let mut s = self.clone();
+        s.faults.clear();
+        s.actuator_faults.clear();
+        s.disturbances.clear();
+        s.loaded.scenario.faults.clear();
+        s.loaded.scenario.actuator_faults.clear();
+        s.loaded.scenario.disturbances.clear();
+        s
     }
 
     pub fn scenario(&self) -> &Scenario {
@@ -349,6 +393,8 @@ pub fn train_gp(
 pub fn fingerprint(setup: &RunSetup) -> String {
     let mut s = setup.scenario().clone();
     s.faults.clear();
+    s.actuator_faults.clear();
+    s.disturbances.clear();
     s.seed = 0;
     s.record_every = 1;
     s.precision = PrecisionConfig {

@@ -2,7 +2,9 @@
 //! any reader), a writer that streams rows to a file while the run goes, an in-memory recorder
 //! (optionally decimating, so its memory stays bounded), and a reader.
 //!
-//! Columns: `t`, `q<i>`, `qd<i>`, `mu<i>`, `mu_p<i>`, `target<i>`, `u<i>` (joints 1-based),
+//! Columns: `t`, `q<i>`, `qd<i>`, `mu<i>`, `mu_p<i>`, `target<i>`, `u<i>` (commanded torque),
+//! `applied<i>` (the torque the joint receives: after effort limits and actuator faults; joints
+//! 1-based),
 //! `y_<channel>` (NaN when missing), `precision_<channel>`, `health_<channel>`, `F` (NaN where the
 //! estimator defines no free energy), `alarm` (1 once the detector has fired), `isolated`
 //! (channels isolated now), and `d_<group>` (the detector's normalised distance per sensor group,
@@ -45,7 +47,7 @@ impl TrajectorySchema {
     pub fn new(layout: &ChannelLayout) -> Self {
         let n = layout.n_joints();
         let mut columns = vec!["t".to_string()];
-        for prefix in ["q", "qd", "mu", "mu_p", "target", "u"] {
+        for prefix in ["q", "qd", "mu", "mu_p", "target", "u", "applied"] {
             columns.extend((1..=n).map(|i| format!("{prefix}{i}")));
         }
         let names = layout.names();
@@ -85,7 +87,7 @@ impl TrajectorySchema {
     pub fn row(&self, r: &TickRecord<'_>, row: &mut Vec<f64>) {
         row.clear();
         row.push(r.t);
-        for v in [r.q, r.qd, r.mu, r.mu_p, r.target, r.torques] {
+        for v in [r.q, r.qd, r.mu, r.mu_p, r.target, r.torques, r.applied] {
             row.extend_from_slice(v);
         }
         row.extend(r.readings.values.iter().map(|v| v.unwrap_or(f64::NAN)));

@@ -365,10 +365,7 @@ impl Fault {
     }
 }
 
-/// The first tick at or after time `t` (robust to rounding of `t / dt`).
-pub fn tick_at(t: f64, dt: f64) -> u64 {
-    (t / dt - 1e-6).ceil().max(0.0) as u64
-}
+pub use crate::tick_at;
 
 /// A fault compiled for a run: ticks, and the state it carries.
 #[derive(Clone, Debug)]

@@ -764,9 +764,7 @@ fn calibrate_cmd(args: CalibrateArgs) -> Result<(), Failure> {
         args.out.display()
     );
     // The false-alarm rate on fresh healthy seeds (disjoint from the calibration's).
-    let mut healthy = setup.clone();
-    healthy.faults.clear();
-    healthy.loaded.scenario.faults.clear();
+    let healthy = setup.healthy();
     let fresh: Vec<u64> = (0..20).map(|i| 1_000_000 + i).collect();
     let check = table::run_table(
         &healthy,

@@ -211,7 +211,7 @@ impl Campaign {
 
     /// The setup a cell runs: its arm's, with the cell's faults and, at rest, one target.
     pub fn cell_setup(&self, cell: &Cell) -> RunSetup {
-        let mut s = self.arms[cell.arm].clone();
+        let mut s = self.arms[cell.arm].healthy();
         s.loaded.scenario.faults = cell.faults.clone();
         s.faults = cell
             .faults

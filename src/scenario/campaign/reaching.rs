@@ -193,10 +193,8 @@ pub(super) fn run_reaching(
         .reaching
         .as_ref()
         .expect("reaching configured");
-    let mut setup = campaign.arms[task.arm].clone();
+    let mut setup = campaign.arms[task.arm].healthy();
     let sc = &mut setup.loaded.scenario;
-    sc.faults.clear();
-    setup.faults.clear();
     sc.duration = rc.duration;
     sc.targets = vec![crate::scenario::Target {
         time: 0.0,
