@@ -230,3 +230,155 @@ fn bad_disturbances_are_refused_naming_the_key() {
         );
     }
 }
+
+/// The paper arm pressing its tip on a table at rest (rapier, contact on): the table's force on
+/// the arm balances gravity and the joint torques, N = J_c^-T (G(q) - tau) with J_c the contact
+/// point's Jacobian in closed form; commanded to press with 20 N, the table pushes back 20 N
+/// straight up.
+#[test]
+fn a_table_pushes_back_what_statics_says() {
+    let p = PaperArm::default();
+    let q: [f64; 2] = [0.3, -0.9];
+    let (s1, c1) = q[0].sin_cos();
+    let (s12, c12) = (q[0] + q[1]).sin_cos();
+    // The lowest corner of link 2's 0.05 m box at the tip: tip - 0.025 (link-frame z in world).
+    let tip = [p.l1 * c1 + L2 * c12, p.l1 * s1 + L2 * s12];
+    let contact = [tip[0] - 0.025 * (-s12), tip[1] - 0.025 * c12];
+    let press = 20.0;
+    // tau = G - J_c^T (0, press): column i of J_c is (-z_i, x_i) for the lever (x_i, z_i).
+    let g = p.gravity(q);
+    let lever2 = contact[0] - p.l1 * c1;
+    let tau = [g[0] - press * contact[0], g[1] - press * lever2];
+    let table_top = contact[1];
+    let settings = aift::plant::PlantSettings {
+        engine: Engine::Rapier,
+        rapier: aift::plant::RapierSettings {
+            obstacles: vec![aift::plant::Obstacle {
+                shape: aift::plant::ObstacleShape::Box,
+                size: vec![1.0, 1.0, 0.2],
+                position: vec![contact[0], 0.0, table_top - 0.1],
+                rpy: vec![0.0; 3],
+                friction: 0.5,
+            }],
+            ..Default::default()
+        },
+        ..Default::default()
+    };
+    let model = common::model("urdf/planar_2dof.urdf");
+    let mut plant = aift::plant::build(model, [0.0, 0.0, -9.81], &settings).unwrap();
+    plant.set_state(&q, &[0.0, 0.0]);
+    plant.set_torques(&tau);
+    let mut mean = Vector3::zeros();
+    for k in 0..2000 {
+        plant.step(1e-3);
+        if k >= 1500 {
+            mean += plant.contact_force() / 500.0;
+        }
+    }
+    let (qf, _) = plant.state();
+    eprintln!("contact force {mean:?} (expected (0, 0, {press})), q {qf:?} from {q:?}");
+    assert!(
+        (qf[0] - q[0]).abs() < 1e-4 && (qf[1] - q[1]).abs() < 1e-4,
+        "{qf:?}"
+    );
+    assert!((mean.z - press).abs() < 1e-3 * press, "normal {}", mean.z);
+    assert!(
+        mean.x.abs() < 1e-3 * press && mean.y.abs() < 1e-6,
+        "{mean:?}"
+    );
+    // Without the table the same torques swing the tip down.
+    let mut free = common::plant_of(
+        "urdf/planar_2dof.urdf",
+        Engine::Rapier,
+        Integrator::Euler,
+        2,
+    );
+    assert!(drift(free.as_mut(), q, tau) > 1e-2);
+}
+
+/// Obstacles need rapier: the articulated engine refuses them, naming the key.
+#[test]
+fn the_articulated_engine_refuses_obstacles() {
+    let tmp = tempfile::tempdir().unwrap();
+    let base = std::fs::read_to_string(common::repo("assets/scenarios/paper_healthy.toml"))
+        .unwrap()
+        .replace(
+            "../../urdf/",
+            &format!("{}/", common::repo("urdf").display()),
+        );
+    let path = tmp.path().join("contact.toml");
+    std::fs::write(
+        &path,
+        format!(
+            "{base}\n[plant]\nengine = \"articulated\"\n[[plant.rapier.obstacles]]\nshape = \"box\"\n\
+             size = [1.0, 1.0, 0.1]\nposition = [1.5, 0.0, -0.5]\n"
+        ),
+    )
+    .unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_aift"))
+        .args(["run", path.to_str().unwrap(), "--out"])
+        .arg(tmp.path().join("out"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("plant.rapier.obstacles"), "{stderr}");
+    assert!(stderr.contains("contact.toml"), "{stderr}");
+}
+
+/// The bundled contact scenario: the paper arm reaches for a target below a table and rests on
+/// it. Every method completes with the same resting pose (not the target), raises no sensor
+/// alarm (nothing failed), the table's force stays finite (its peak is the landing's impact),
+/// and the tip does not sink into the table.
+#[test]
+fn resting_on_a_table_is_not_a_fault() {
+    let setup = common::setup("paper_contact.toml", &["duration=12.0"]);
+    let p = PaperArm::default();
+    let mut rest: Option<Vec<f64>> = None;
+    for method in [
+        Method::NoFt,
+        Method::PlAlways,
+        Method::Hybrid,
+        Method::EkfGate,
+        Method::Imm,
+    ] {
+        let r = aift::scenario::Run::new(&setup, method)
+            .seed(5)
+            .execute()
+            .unwrap();
+        eprintln!(
+            "{}: {} final error {:?} alarms {} contact {:.1} N",
+            method.name(),
+            r.outcome.name(),
+            r.final_error_per_joint,
+            r.detections.len(),
+            r.max_contact_force
+        );
+        assert_eq!(r.outcome.name(), "completed", "{}", method.name());
+        assert_eq!(
+            r.detections.len(),
+            0,
+            "{}: {:?}",
+            method.name(),
+            r.detections
+        );
+        // The peak is the impact (about m v / dt over the tick the tip lands in).
+        assert!(r.max_contact_force > 1.0 && r.max_contact_force < 1e4);
+        let q = &r.q_final;
+        let tip_z = p.l1 * q[0].sin() + L2 * (q[0] + q[1]).sin();
+        // Table top at -0.6; the link's half thickness (0.025) keeps the tip above it.
+        assert!(tip_z > -0.6 - 1e-3, "{}: tip at z = {tip_z}", method.name());
+        assert!(
+            r.max_final_error > 0.05,
+            "the table keeps it from the target"
+        );
+        match &rest {
+            None => rest = Some(q.clone()),
+            Some(first) => {
+                for (a, b) in first.iter().zip(q) {
+                    assert!((a - b).abs() < 1e-3, "{}: rests at {q:?}", method.name());
+                }
+            }
+        }
+    }
+}

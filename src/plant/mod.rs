@@ -26,7 +26,9 @@ pub use actuators::{
 pub use articulated::{ArticulatedPlant, ArticulatedSettings, Integrator, MAX_SUBSTEPS};
 pub use disturbances::{Disturbance, DisturbanceKind, DisturbanceSpec, Disturbances};
 pub use open_loop::{OpenLoopSample, open_loop_header, run_open_loop};
-pub use rapier::{MAX_SOLVER_ITERATIONS, RapierPlant, RapierSettings};
+pub use rapier::{
+    MAX_OBSTACLES, MAX_SOLVER_ITERATIONS, Obstacle, ObstacleShape, RapierPlant, RapierSettings,
+};
 
 use crate::arm::ArmModel;
 pub use crate::arm::kinematics::ArmPose;
@@ -80,6 +82,12 @@ pub trait Plant: ArmPose + Send {
     /// The external forces acting from the next step on, replacing those set before (a push on
     /// a link; empty: none).
     fn set_external_forces(&mut self, forces: &[ExternalForce]);
+
+    /// The total force (N, world frame) the environment's obstacles exert on the arm over the
+    /// last step; zero for a plant without contact.
+    fn contact_force(&self) -> nalgebra::Vector3<f64> {
+        nalgebra::Vector3::zeros()
+    }
 
     /// Engages (`true`) a brake on `joint` (0-based) that holds it at its current position,
     /// whatever the torques, until released (`false`); the rest of the arm moves on with the
@@ -181,6 +189,12 @@ impl PlantSettings {
                     "applies to engine = \"articulated\" (rapier integrates its own way)",
                 ))
             }
+            Engine::Articulated if !self.rapier.obstacles.is_empty() => {
+                Err(crate::SettingError::new(
+                    "rapier.obstacles",
+                    "contact needs engine = \"rapier\" (the articulated engine has no contact)",
+                ))
+            }
             Engine::Articulated if self.rapier != RapierSettings::default() => Err(
                 crate::SettingError::new("rapier", "applies to engine = \"rapier\""),
             ),
@@ -191,6 +205,11 @@ impl PlantSettings {
     /// A short description for tables and reports: `articulated (euler, 2 substeps)`.
     pub fn describe(&self) -> String {
         match self.engine {
+            Engine::Rapier if !self.rapier.obstacles.is_empty() => format!(
+                "rapier ({} solver iterations, contact with {} obstacle(s))",
+                self.rapier.solver_iterations,
+                self.rapier.obstacles.len()
+            ),
             Engine::Rapier => format!(
                 "rapier ({} solver iterations)",
                 self.rapier.solver_iterations

@@ -14,8 +14,8 @@ use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use rapier3d_f64::glamx::{DQuat, DVec3};
 use rapier3d_f64::math::Pose;
 use rapier3d_f64::prelude::{
-    GenericJoint, JointAxesMask, JointAxis, MassProperties, MultibodyIndex, PhysicsWorld,
-    RigidBodyBuilder, RigidBodyHandle,
+    ColliderBuilder, GenericJoint, Group, InteractionGroups, InteractionTestMode, JointAxesMask,
+    JointAxis, MassProperties, MultibodyIndex, PhysicsWorld, RigidBodyBuilder, RigidBodyHandle,
 };
 use serde::{Deserialize, Serialize};
 
@@ -25,6 +25,9 @@ use crate::arm::{ArmModel, JointKind};
 /// Most solver iterations per tick.
 pub const MAX_SOLVER_ITERATIONS: usize = 1000;
 
+/// Most obstacles in one scene.
+pub const MAX_OBSTACLES: usize = 100;
+
 /// Settings of the rapier plant (`[plant.rapier]`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
@@ -33,12 +36,17 @@ pub struct RapierSettings {
     /// on the paper arm the error against the closed-form RK4 oracle after 2 s is of order
     /// 1e-5 rad with the default 2 (tests/plant_dynamics.rs).
     pub solver_iterations: usize,
+    /// Obstacles fixed in the world that the arm's collision shapes touch (contact forces on,
+    /// in rapier; the arm's links never collide with each other). The camera does not see them.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub obstacles: Vec<Obstacle>,
 }
 
 impl Default for RapierSettings {
     fn default() -> Self {
         Self {
             solver_iterations: 2,
+            obstacles: Vec::new(),
         }
     }
 }
@@ -51,7 +59,97 @@ impl RapierSettings {
                 format!("must be in 1..={MAX_SOLVER_ITERATIONS}"),
             ));
         }
+        if self.obstacles.len() > MAX_OBSTACLES {
+            return Err(crate::SettingError::new(
+                "obstacles",
+                format!("at most {MAX_OBSTACLES}"),
+            ));
+        }
+        for (i, o) in self.obstacles.iter().enumerate() {
+            o.validate()
+                .map_err(|e| e.within(&format!("obstacles[{i}]")))?;
+        }
         Ok(())
+    }
+}
+
+/// The shape of an obstacle.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(rename_all = "kebab-case")]
+pub enum ObstacleShape {
+    /// A box: `size` = [x, y, z] full extents (m).
+    Box,
+    /// A ball: `size` = [radius] (m).
+    Ball,
+}
+
+/// An obstacle fixed in the world (a table, a wall, something on the path).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Obstacle {
+    pub shape: ObstacleShape,
+    /// `box`: [x, y, z] full extents; `ball`: [radius] (m, each in (0, 1e3]).
+    pub size: Vec<f64>,
+    /// Centre (m, world frame).
+    pub position: Vec<f64>,
+    /// Orientation: roll, pitch, yaw (rad, URDF's convention).
+    #[serde(default = "zeros3")]
+    pub rpy: Vec<f64>,
+    /// Coulomb friction coefficient of its contacts (>= 0).
+    #[serde(default = "half")]
+    pub friction: f64,
+}
+
+fn zeros3() -> Vec<f64> {
+    vec![0.0; 3]
+}
+
+fn half() -> f64 {
+    0.5
+}
+
+impl Obstacle {
+    fn validate(&self) -> Result<(), crate::SettingError> {
+        let sizes = match self.shape {
+            ObstacleShape::Box => 3,
+            ObstacleShape::Ball => 1,
+        };
+        if self.size.len() != sizes {
+            return Err(crate::SettingError::new(
+                "size",
+                format!("a {:?} takes {sizes} number(s)", self.shape).to_lowercase(),
+            ));
+        }
+        if !self
+            .size
+            .iter()
+            .all(|s| s.is_finite() && *s > 0.0 && *s <= 1e3)
+        {
+            return Err(crate::SettingError::new("size", "each in (0, 1e3] m"));
+        }
+        for (name, v, bound) in [("position", &self.position, 1e3), ("rpy", &self.rpy, 1e3)] {
+            if v.len() != 3 {
+                return Err(crate::SettingError::new(name, "takes 3 numbers"));
+            }
+            if !v.iter().all(|x| x.is_finite() && x.abs() <= bound) {
+                return Err(crate::SettingError::new(
+                    name,
+                    format!("each finite and at most {bound} in size"),
+                ));
+            }
+        }
+        if !(self.friction.is_finite() && (0.0..=1e3).contains(&self.friction)) {
+            return Err(crate::SettingError::new("friction", "must be in [0, 1e3]"));
+        }
+        Ok(())
+    }
+
+    /// Its pose in the world.
+    fn pose(&self) -> Isometry3<f64> {
+        Isometry3::from_parts(
+            Translation3::new(self.position[0], self.position[1], self.position[2]),
+            UnitQuaternion::from_euler_angles(self.rpy[0], self.rpy[1], self.rpy[2]),
+        )
     }
 }
 
@@ -201,6 +299,9 @@ impl RapierPlant {
             }
         }
         let n = joints.len();
+        if !settings.obstacles.is_empty() {
+            insert_contact_shapes(&mut world, &model, &bodies, &settings.obstacles);
+        }
         Ok(Self {
             base: model.clone(),
             payloads: super::Payloads::new(model.bodies.len()),
@@ -241,6 +342,41 @@ fn insert_bodies(world: &mut PhysicsWorld, model: &ArmModel) -> Vec<RigidBodyHan
         bodies.push(world.insert_body(builder));
     }
     bodies
+}
+
+/// The arm's collision shapes on its links (no mass: the URDF's inertials hold it; touching only
+/// the obstacles) and the obstacles as fixed colliders.
+fn insert_contact_shapes(
+    world: &mut PhysicsWorld,
+    model: &ArmModel,
+    bodies: &[RigidBodyHandle],
+    obstacles: &[Obstacle],
+) {
+    let arm = InteractionGroups::new(Group::GROUP_1, Group::GROUP_2, InteractionTestMode::And);
+    let scene = InteractionGroups::new(Group::GROUP_2, Group::GROUP_1, InteractionTestMode::And);
+    for c in &model.colliders {
+        if c.body == 0 {
+            continue;
+        }
+        let collider = ColliderBuilder::new(c.parry_shape.clone())
+            .position(c.parry_pose)
+            .density(0.0)
+            .collision_groups(arm);
+        world.insert_collider(collider, Some(bodies[c.body]));
+    }
+    for o in obstacles {
+        let builder = match o.shape {
+            ObstacleShape::Box => {
+                ColliderBuilder::cuboid(o.size[0] / 2.0, o.size[1] / 2.0, o.size[2] / 2.0)
+            }
+            ObstacleShape::Ball => ColliderBuilder::ball(o.size[0]),
+        };
+        let collider = builder
+            .position(to_pose(&o.pose()))
+            .friction(o.friction)
+            .collision_groups(scene);
+        world.insert_collider(collider, None);
+    }
 }
 
 /// A body's mass, centre of mass and inertia in rapier's type.
@@ -329,6 +465,31 @@ impl Plant for RapierPlant {
     fn set_external_forces(&mut self, forces: &[super::ExternalForce]) {
         self.external.clear();
         self.external.extend_from_slice(forces);
+    }
+
+    /// The sum over the arm's touching contact pairs of their impulse over the last step / dt,
+    /// as the force on the arm.
+    fn contact_force(&self) -> Vector3<f64> {
+        let dt = self.world.integration_parameters.dt;
+        let mut total = Vector3::zeros();
+        for pair in self.world.narrow_phase.contact_pairs() {
+            if !pair.has_any_active_contact() {
+                continue;
+            }
+            let on_arm = |h: rapier3d_f64::prelude::ColliderHandle| {
+                self.world.colliders[h]
+                    .parent()
+                    .is_some_and(|b| self.bodies[1..].contains(&b))
+            };
+            let impulse = to_vector(pair.total_impulse());
+            // The impulse pushes collider 2 away from collider 1.
+            if on_arm(pair.collider2) {
+                total += impulse / dt;
+            } else if on_arm(pair.collider1) {
+                total -= impulse / dt;
+            }
+        }
+        total
     }
 
     /// A brake is a joint limit at the held position (rapier's multibody limit constraint);

@@ -116,6 +116,7 @@ pub fn summary_json(setup: &RunSetup, result: &RunResult) -> serde_json::Value {
             "sensor_alarms": d.sensor_alarms,
             "momentum_alarms": d.momentum_alarms,
         })).collect::<Vec<_>>(),
+        "max_contact_force": result.max_contact_force,
         "momentum": result.momentum.as_ref().map(|m| json!({
             "thresholds": m.thresholds,
             "largest": m.largest,

@@ -161,6 +161,8 @@ pub struct RunResult {
     pub disturbances: Vec<DisturbanceOutcome>,
     /// The momentum observer's findings, when it runs.
     pub momentum: Option<MomentumSummary>,
+    /// The largest force the obstacles exerted on the arm (N; 0 without contact).
+    pub max_contact_force: f64,
     /// Health per channel at the end.
     pub final_health: Vec<f64>,
     /// Lowest health per channel over the last 5 s.
@@ -434,6 +436,7 @@ impl RunMetrics {
             actuator_faults,
             disturbances,
             momentum,
+            max_contact_force: 0.0,
             final_health: self.health,
             min_health_last_5s: self.min_health_last,
             channels: self.layout.names(),
