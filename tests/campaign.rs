@@ -162,6 +162,42 @@ high = { enc = 3.0, tach = 10.0, cam = 1.0 }
     );
 }
 
+/// Actuator kinds expand over each arm's joints and the actuator onsets; disturbance cells are
+/// one per arm; neither is healthy.
+#[test]
+fn actuator_and_disturbance_cells_expand() {
+    use aift::plant::ActuatorFaultKind;
+    let text = r#"
+name = "a"
+channels = []
+arms = [{ name = "a", scenario = "x.toml", joints = [1, 3] }]
+actuator_kinds = [{ kind = "locked" }, { kind = "effectiveness", factor = 0.5 }]
+actuator_onsets = ["moving", "rest"]
+[[disturbance_cells]]
+label = "push"
+disturbances = [{ kind = "push", link = "ee", start = 8.0, end = 8.2, force = [0.0, 0.0, 50.0] }]
+"#;
+    let config: CampaignConfig = toml::from_str(text).unwrap();
+    let cells = expand(&config, &config.onsets);
+    assert_eq!(cells.len(), 1 + 2 * 2 * 2 + 1);
+    let locked = cells
+        .iter()
+        .find(|c| c.label == "motor3 locked rest")
+        .unwrap();
+    assert!(locked.rest && !locked.is_healthy());
+    assert_eq!(locked.kind, "actuator-locked");
+    assert_eq!(locked.actuator_faults[0].start, 5.0);
+    assert_eq!(locked.actuator_faults[0].kind, ActuatorFaultKind::Locked {});
+    let eff = cells
+        .iter()
+        .find(|c| c.label == "motor1 effectiveness moving")
+        .unwrap();
+    assert_eq!(eff.actuator_faults[0].start, 8.0);
+    let push = cells.iter().find(|c| c.label == "push").unwrap();
+    assert!(!push.is_healthy() && push.faults.is_empty() && push.actuator_faults.is_empty());
+    assert_eq!(push.kind, "disturbance");
+}
+
 /// The bundled campaign files parse and expand to the grids their comments promise.
 #[test]
 fn the_bundled_campaigns_expand_to_their_grids() {
@@ -172,6 +208,12 @@ fn the_bundled_campaigns_expand_to_their_grids() {
     let default = load("default.toml");
     assert_eq!(expand(&default, &default.onsets).len(), 234);
     assert_eq!(default.arms.len(), 6);
+    let actuators = load("actuators.toml");
+    // Per arm: healthy + 5 channels x 4 timing kinds + 2 joints x 6 actuator kinds + 2.
+    assert_eq!(
+        expand(&actuators, &actuators.onsets).len(),
+        2 * (1 + 20 + 12 + 2)
+    );
     let reaching = load("reaching.toml");
     let cells = expand(&reaching, &reaching.onsets);
     assert_eq!(cells.len(), 6);
@@ -426,4 +468,59 @@ duration = 1.0
     }
     let csv = std::fs::read_to_string(d.join("whole/reaching.csv")).unwrap();
     assert_eq!(csv.lines().count(), 1 + 3 * 2);
+}
+
+/// A dead motor is judged on the other joints; a loss of effectiveness on every joint. On the
+/// paper arm a dead joint 2 falls under gravity (its own final error is large) while joint 1 still
+/// reaches its target: recovered. With joint 1 at 20 % effectiveness the shoulder sags: failed.
+#[test]
+fn a_dead_motor_is_judged_on_the_other_joints() {
+    let tmp = tempfile::tempdir().unwrap();
+    let text = format!(
+        r#"
+name = "dead"
+seeds = 1
+methods = ["no-ft"]
+channels = []
+healthy = false
+actuator_kinds = [{{ kind = "dead" }}, {{ kind = "effectiveness", factor = 0.2 }}]
+onsets = {{ moving = 1.0 }}
+[defaults]
+duration = 6.0
+plant = {{ engine = "articulated" }}
+targets = [{{ time = 0.0, q = [-0.2, 0.5] }}]
+initial = {{ q = [-0.2, 0.5] }}
+[[arms]]
+name = "paper"
+scenario = "{}"
+joints = [1, 2]
+"#,
+        common::repo("assets/scenarios/paper_healthy.toml").display()
+    );
+    let file = tmp.path().join("dead.toml");
+    std::fs::write(&file, text).unwrap();
+    let campaign = aift::scenario::campaign::Campaign::load(&file, &[]).unwrap();
+    let records = aift::scenario::campaign::run_campaign(
+        &campaign,
+        aift::scenario::campaign::Shard::WHOLE,
+        None,
+        &|_, _| {},
+    )
+    .unwrap();
+    let verdict = |label: &str| {
+        let cell = campaign
+            .cells
+            .iter()
+            .position(|c| c.label == label)
+            .unwrap();
+        let run = records.runs.iter().find(|r| r.cell == cell).unwrap();
+        (run.verdict.name(), run.max_final_error)
+    };
+    let (v, e) = verdict("motor2 dead moving");
+    eprintln!("motor2 dead: {v}, largest final error over every joint {e}");
+    assert_eq!(v, "recovered");
+    assert!(e > 0.1, "joint 2 fell: {e}");
+    let (v, e) = verdict("motor1 effectiveness moving");
+    eprintln!("motor1 at 20 %: {v}, {e}");
+    assert_eq!(v, "failed");
 }

@@ -295,11 +295,16 @@ impl RunMetrics {
         Self {
             layout,
             dt,
-            actuator_faults,
             actuator_windows,
             disturbances,
-            first_fault: acting.iter().map(|f| f.start_tick(dt)).min(),
+            // Sensor or actuator: a disturbance is not a fault.
+            first_fault: acting
+                .iter()
+                .map(|f| f.start_tick(dt))
+                .chain(actuator_faults.iter().map(|f| f.start_tick(dt)))
+                .min(),
             faults: acting,
+            actuator_faults,
             windows,
             faulty_channels,
             faulty_joints,

@@ -259,6 +259,18 @@ pub struct PairEntry {
     pub faults: Vec<FaultSpec>,
 }
 
+/// A disturbance cell: its disturbances as in a scenario file (the correct verdict: no fault).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DisturbanceEntry {
+    pub label: String,
+    pub disturbances: Vec<crate::plant::DisturbanceSpec>,
+}
+
+fn is_moving_only(onsets: &[Onset]) -> bool {
+    onsets == [Onset::Moving]
+}
+
 /// How the reaching benchmark measures a task (docs/campaigns.md, "The healthy reaching
 /// benchmark").
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -417,6 +429,16 @@ pub struct CampaignConfig {
     pub kinds: Vec<CampaignKind>,
     #[serde(default)]
     pub pairs: Vec<PairEntry>,
+    /// Actuator fault kinds (as a scenario's `[[actuator_faults]]` writes them, without joint
+    /// and times), each on every listed joint of each arm.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub actuator_kinds: Vec<crate::plant::ActuatorFaultKind>,
+    /// When the actuator faults start (default `["moving"]`).
+    #[serde(default = "moving_only", skip_serializing_if = "is_moving_only")]
+    pub actuator_onsets: Vec<Onset>,
+    /// Disturbance cells (payloads, pushes): no sensor or actuator fault.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub disturbance_cells: Vec<DisturbanceEntry>,
     /// A healthy cell per arm (false alarms per hour).
     #[serde(default = "yes")]
     pub healthy: bool,

@@ -1,6 +1,8 @@
-//! The grid: a campaign file expanded into cells (arm x channel x kind x onset, pairs, healthy).
+//! The grid: a campaign file expanded into cells (arm x channel x kind x onset, pairs, healthy;
+//! arm x joint x actuator kind x onset; disturbance cells).
 
 use super::{CampaignConfig, Onset, OnsetConfig};
+use crate::plant::{ActuatorFaultSpec, DisturbanceSpec, JointSelection};
 use crate::sensors::{ChannelSelection, FaultSpec};
 
 /// One cell of the grid.
@@ -18,11 +20,29 @@ pub struct Cell {
     /// Whether the second target is removed (the arm rests).
     pub rest: bool,
     pub faults: Vec<FaultSpec>,
+    pub actuator_faults: Vec<ActuatorFaultSpec>,
+    pub disturbances: Vec<DisturbanceSpec>,
 }
 
 impl Cell {
+    /// No sensor fault, actuator fault or disturbance.
     pub fn is_healthy(&self) -> bool {
-        self.faults.is_empty()
+        self.faults.is_empty() && self.actuator_faults.is_empty() && self.disturbances.is_empty()
+    }
+
+    /// A cell of sensor faults only (none of actuators or disturbances), or the healthy cell.
+    fn sensor_cell(arm: usize, label: String, channel: String, kind: String) -> Self {
+        Self {
+            arm,
+            label,
+            channel,
+            kind,
+            onset: None,
+            rest: false,
+            faults: vec![],
+            actuator_faults: vec![],
+            disturbances: vec![],
+        }
     }
 }
 
@@ -32,15 +52,12 @@ pub fn expand(config: &CampaignConfig, onsets: &OnsetConfig) -> Vec<Cell> {
     let mut cells = Vec::new();
     for (a, arm) in config.arms.iter().enumerate() {
         if config.healthy {
-            cells.push(Cell {
-                arm: a,
-                label: "healthy".into(),
-                channel: String::new(),
-                kind: "healthy".into(),
-                onset: None,
-                rest: false,
-                faults: vec![],
-            });
+            cells.push(Cell::sensor_cell(
+                a,
+                "healthy".into(),
+                String::new(),
+                "healthy".into(),
+            ));
         }
         let mut channels = Vec::new();
         for c in &config.channels {
@@ -64,13 +81,15 @@ pub fn expand(config: &CampaignConfig, onsets: &OnsetConfig) -> Vec<Cell> {
                         kind: kind.fault_kind(channel),
                     };
                     cells.push(Cell {
-                        arm: a,
-                        label: format!("{channel} {} {}", fault.kind.name(), onset.name()),
-                        channel: channel.clone(),
-                        kind: fault.kind.name().into(),
                         onset: Some(onset),
                         rest: onset == Onset::Rest,
-                        faults: vec![fault],
+                        faults: vec![fault.clone()],
+                        ..Cell::sensor_cell(
+                            a,
+                            format!("{channel} {} {}", fault.kind.name(), onset.name()),
+                            channel.clone(),
+                            fault.kind.name().into(),
+                        )
                     });
                 }
             }
@@ -106,13 +125,41 @@ pub fn expand(config: &CampaignConfig, onsets: &OnsetConfig) -> Vec<Cell> {
                 .collect::<Vec<_>>()
                 .join(" then ");
             cells.push(Cell {
-                arm: a,
-                label: pair.label.clone(),
-                channel,
-                kind: "pair".into(),
-                onset: None,
-                rest: false,
                 faults,
+                ..Cell::sensor_cell(a, pair.label.clone(), channel, "pair".into())
+            });
+        }
+        for kind in &config.actuator_kinds {
+            for &joint in &arm.joints {
+                for &onset in &config.actuator_onsets {
+                    let start = match onset {
+                        Onset::Moving => onsets.moving,
+                        Onset::Rest | Onset::RestThenMotion => onsets.rest,
+                    };
+                    let channel = format!("motor{joint}");
+                    cells.push(Cell {
+                        onset: Some(onset),
+                        rest: onset == Onset::Rest,
+                        actuator_faults: vec![ActuatorFaultSpec {
+                            joint: JointSelection::One(joint),
+                            start,
+                            end: None,
+                            kind: *kind,
+                        }],
+                        ..Cell::sensor_cell(
+                            a,
+                            format!("{channel} {} {}", kind.name(), onset.name()),
+                            channel,
+                            format!("actuator-{}", kind.name()),
+                        )
+                    });
+                }
+            }
+        }
+        for d in &config.disturbance_cells {
+            cells.push(Cell {
+                disturbances: d.disturbances.clone(),
+                ..Cell::sensor_cell(a, d.label.clone(), String::new(), "disturbance".into())
             });
         }
     }

@@ -212,11 +212,24 @@ impl Campaign {
     /// The setup a cell runs: its arm's, with the cell's faults and, at rest, one target.
     pub fn cell_setup(&self, cell: &Cell) -> RunSetup {
         let mut s = self.arms[cell.arm].healthy();
+        let (n, dt) = (s.layout.n_joints(), s.scenario().dt);
         s.loaded.scenario.faults = cell.faults.clone();
         s.faults = cell
             .faults
             .iter()
-            .map(|f| f.to_fault(&s.layout, s.scenario().dt).expect("validated"))
+            .map(|f| f.to_fault(&s.layout, dt).expect("validated"))
+            .collect();
+        s.loaded.scenario.actuator_faults = cell.actuator_faults.clone();
+        s.actuator_faults = cell
+            .actuator_faults
+            .iter()
+            .map(|f| f.to_fault(n, dt).expect("validated"))
+            .collect();
+        s.loaded.scenario.disturbances = cell.disturbances.clone();
+        s.disturbances = cell
+            .disturbances
+            .iter()
+            .map(|d| d.to_disturbance(&s.model).expect("validated"))
             .collect();
         if cell.rest {
             s.loaded.scenario.targets.truncate(1);
@@ -494,7 +507,58 @@ fn check_grid(config: &CampaignConfig, path: &Path, methods: usize) -> Result<()
             ));
         }
     }
-    // Cells per arm: healthy + channels x (kinds x onsets) + pairs, counted without expanding.
+    for (i, k) in config.actuator_kinds.iter().enumerate() {
+        if config.actuator_kinds[..i]
+            .iter()
+            .any(|o| o.name() == k.name())
+        {
+            return Err(bad(
+                &format!("actuator_kinds[{i}]"),
+                format!("kind {:?} is listed twice", k.name()),
+            ));
+        }
+    }
+    let a_onsets = &config.actuator_onsets;
+    if a_onsets.is_empty() {
+        return Err(bad("actuator_onsets", "lists no onset".into()));
+    }
+    if let Some((j, o)) = a_onsets
+        .iter()
+        .enumerate()
+        .find(|(j, o)| a_onsets[..*j].contains(o))
+    {
+        return Err(bad(
+            &format!("actuator_onsets[{j}]"),
+            format!("{:?} is listed twice", o.name()),
+        ));
+    }
+    for (i, d) in config.disturbance_cells.iter().enumerate() {
+        let taken = config.pairs.iter().any(|p| p.label == d.label)
+            || config.disturbance_cells[..i]
+                .iter()
+                .any(|o| o.label == d.label);
+        let onset_word = Onset::ALL
+            .iter()
+            .any(|o| d.label.ends_with(&format!(" {}", o.name())));
+        if taken || d.label == "healthy" || d.label.trim().is_empty() || onset_word {
+            return Err(bad(
+                &format!("disturbance_cells[{i}].label"),
+                format!(
+                    "{:?} is empty, taken by an earlier pair or disturbance cell, or reads as \
+                     another cell's label",
+                    d.label
+                ),
+            ));
+        }
+        if d.disturbances.is_empty() {
+            return Err(bad(
+                &format!("disturbance_cells[{i}].disturbances"),
+                "lists no disturbance".into(),
+            ));
+        }
+    }
+    // Cells per arm: healthy + channels x (kinds x onsets) + pairs + joints x actuator kinds x
+    // actuator onsets + disturbance cells, counted without expanding.
     let onsets: usize = config
         .kinds
         .iter()
@@ -511,7 +575,14 @@ fn check_grid(config: &CampaignConfig, path: &Path, methods: usize) -> Result<()
         cells = cells
             .saturating_add(usize::from(config.healthy))
             .saturating_add(channels.saturating_mul(onsets))
-            .saturating_add(config.pairs.len());
+            .saturating_add(config.pairs.len())
+            .saturating_add(
+                arm.joints
+                    .len()
+                    .saturating_mul(config.actuator_kinds.len())
+                    .saturating_mul(a_onsets.len()),
+            )
+            .saturating_add(config.disturbance_cells.len());
     }
     if cells > MAX_CELLS {
         return Err(bad(
@@ -664,6 +735,29 @@ fn check_cells(
                     ),
                 ));
             }
+        }
+        let arm = &config.arms[cell.arm].name;
+        for (k, f) in cell.actuator_faults.iter().enumerate() {
+            f.to_fault(setup.layout.n_joints(), sc.dt).map_err(|e| {
+                bad(
+                    &format!(
+                        "cell `{}` of arm {arm}: actuator fault {k}.{}",
+                        cell.label, e.field
+                    ),
+                    e.message,
+                )
+            })?;
+        }
+        for (k, d) in cell.disturbances.iter().enumerate() {
+            d.to_disturbance(&setup.model).map_err(|e| {
+                bad(
+                    &format!(
+                        "cell `{}` of arm {arm}: disturbance {k}.{}",
+                        cell.label, e.field
+                    ),
+                    e.message,
+                )
+            })?;
         }
     }
     Ok(())

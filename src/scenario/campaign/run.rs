@@ -131,20 +131,29 @@ impl Observer for RecoveryObserver {
     }
 }
 
-/// Whether a joint is at (within 1 mrad of) one of its limits.
-fn at_limit(setup: &RunSetup, q: &[f64]) -> bool {
-    setup.model.joints.iter().zip(q).any(|(j, &q)| {
-        j.limits
-            .is_some_and(|(lo, hi)| q <= lo + 1e-3 || q >= hi - 1e-3)
-    })
+/// Whether a joint (other than those `skipped`) is at (within 1 mrad of) one of its limits.
+fn at_limit(setup: &RunSetup, q: &[f64], skipped: &[usize]) -> bool {
+    setup
+        .model
+        .joints
+        .iter()
+        .zip(q)
+        .enumerate()
+        .any(|(i, (j, &q))| {
+            !skipped.contains(&i)
+                && j.limits
+                    .is_some_and(|(lo, hi)| q <= lo + 1e-3 || q >= hi - 1e-3)
+        })
 }
 
-fn verdict_of(r: &RunResult, runaway: bool, v: &VerdictConfig) -> Verdict {
-    if r.outcome.name() == "diverged" || !r.max_final_error.is_finite() {
+/// The verdict from the run and its judged final error (every joint's, or, with a dead or
+/// locked motor, the other joints').
+fn verdict_of(r: &RunResult, judged: f64, runaway: bool, v: &VerdictConfig) -> Verdict {
+    if r.outcome.name() == "diverged" || !judged.is_finite() {
         Verdict::Diverged
-    } else if runaway || r.max_final_error > v.degraded || r.outcome.name() == "chattering" {
+    } else if runaway || judged > v.degraded || r.outcome.name() == "chattering" {
         Verdict::Failed
-    } else if r.max_final_error > v.tolerance {
+    } else if judged > v.tolerance {
         Verdict::Degraded
     } else {
         Verdict::Recovered
@@ -176,7 +185,12 @@ fn run_job(
     if joints.is_empty() {
         joints = (0..n).collect();
     }
-    let fault_tick = setup.faults.iter().map(|f| f.start_tick(dt)).min();
+    let fault_tick = setup
+        .faults
+        .iter()
+        .map(|f| f.start_tick(dt))
+        .chain(setup.actuator_faults.iter().map(|f| f.start_tick(dt)))
+        .min();
     let mut recovery = RecoveryObserver::new(joints.clone(), fault_tick.unwrap_or(u64::MAX), dt);
     let r = Run::new(setup, method)
         .seed(seed)
@@ -187,25 +201,53 @@ fn run_job(
         Some(post) => joints.iter().map(|&j| post[j]).sum::<f64>() / joints.len() as f64,
         None => r.mse_per_joint.iter().sum::<f64>() / n as f64,
     };
-    let runaway = r
-        .final_error_per_joint
+    // A dead or locked motor cannot be compensated on its own joint: recovery is the rest of the
+    // arm reaching its targets and staying safe (docs/method.md, "Actuator faults").
+    let lost: Vec<usize> = setup
+        .actuator_faults
         .iter()
-        .any(|e| !e.is_finite() || *e > campaign.config.verdict.runaway)
-        || at_limit(setup, &r.q_final);
+        .filter(|f| {
+            matches!(
+                f.kind,
+                crate::plant::ActuatorFaultKind::Dead {}
+                    | crate::plant::ActuatorFaultKind::Locked {}
+            )
+        })
+        .flat_map(|f| f.joints.iter().copied())
+        .collect();
+    let judged_joints = || (0..n).filter(|j| !lost.contains(j));
+    let judged = judged_joints()
+        .map(|j| r.final_error_per_joint[j])
+        .fold(0.0f64, |a, e| if e.is_nan() { f64::NAN } else { a.max(e) });
+    let runaway = judged_joints().any(|j| {
+        let e = r.final_error_per_joint[j];
+        !e.is_finite() || e > campaign.config.verdict.runaway
+    }) || at_limit(setup, &r.q_final, &lost);
     let first = r.faults.first();
+    // Actuator cells: the momentum observer's detection (None when it does not run).
+    let actuator = r.actuator_faults.first();
+    let (detected, delay, isolation_correct) = match (first, actuator) {
+        (Some(f), _) => (Some(f.detected_at.is_some()), f.delay, f.isolation_correct),
+        (None, Some(a)) if r.momentum.is_some() => (
+            Some(a.momentum_detected_at.is_some()),
+            a.momentum_delay,
+            a.momentum_isolation_correct,
+        ),
+        _ => (None, None, None),
+    };
     Ok(CampaignRun {
         job,
         cell: cell_index,
         method,
         seed,
         outcome: r.outcome.name().to_string(),
-        verdict: verdict_of(&r, runaway, &campaign.config.verdict),
+        verdict: verdict_of(&r, judged, runaway, &campaign.config.verdict),
         mse_post,
         max_final_error: r.max_final_error,
         runaway,
-        detected: first.map(|f| f.detected_at.is_some()),
-        delay: first.and_then(|f| f.delay),
-        isolation_correct: first.and_then(|f| f.isolation_correct),
+        detected,
+        delay,
+        isolation_correct,
         false_alarms: r.false_alarms,
         hours: r.ticks_run as f64 * dt / 3600.0,
         recover_time: if cell.is_healthy() {
