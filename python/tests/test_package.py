@@ -146,6 +146,28 @@ def test_step_api_equals_run_and_reaches_the_target():
     assert info["diverged"] is None and not info["alarm"]
 
 
+def test_actuator_faults_reach_runs_and_the_step_api():
+    # A dead motor on joint 2 from 1 s: the trajectory's applied torque is the commanded one
+    # before, 0 after; the step API shows the same in obs["applied"].
+    sc = aift.Scenario.default(
+        ["duration=2.0", "faults=[]", 'actuator_faults=[{joint=2, kind="dead", start=1.0}]']
+    )
+    r = aift.run(sc, method="no-ft", seed=3)
+    fault = r.summary["actuator_faults"][0]
+    assert (fault["kind"], fault["joint"], fault["start"]) == ("dead", "motor2", 1.0)
+    t = r.trajectory
+    before = t["t"] < 1.0 - 1e-9
+    assert_same_bits(t["applied2"][before], t["u2"][before], "applied2 before the fault")
+    assert (t["applied2"][~before] == 0.0).all()
+    assert (t["u2"][~before] != 0.0).any()
+    sim = aift.Sim(sc, method="no-ft")
+    obs, info = sim.reset(seed=3)
+    while obs["t"] < 1.5:
+        obs, info = sim.step()
+    assert obs["applied"][1] == 0.0 and obs["u"][1] != 0.0
+    assert obs["applied"][0] == obs["u"][0]
+
+
 def test_step_api_takes_torques_and_readings():
     sc = aift.Scenario.default(["duration=3.0", "faults=[]"])
     sim = aift.Sim(sc, method="pl-always")
