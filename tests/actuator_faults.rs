@@ -147,8 +147,15 @@ fn a_locked_joint_is_held_and_the_rest_moves_as_the_reduced_arm() {
                 "{engine:?}/{integrator:?}: q2 {} ref {x}, qd2 {} ref {v}",
                 q[1], qd[1]
             );
-            assert!((q[1] - x).abs() < 2e-5, "{engine:?}: q2 {} ref {x}", q[1]);
-            // Released: joint 1 moves again.
+            // Measured: 4e-16 (articulated RK4), 4e-7 (articulated Euler), 6e-6 (rapier).
+            let bound = match (engine, integrator) {
+                (Engine::Articulated, Integrator::Rk4) => 1e-12,
+                (Engine::Articulated, _) => 2e-6,
+                _ => 2e-5,
+            };
+            assert!((q[1] - x).abs() < bound, "{engine:?}: q2 {} ref {x}", q[1]);
+            // Released (no torque on joint 1 now): it falls under gravity.
+            arm.set_torques(&[0.0, tau2]);
             arm.set_brake(0, false);
             for _ in 0..100 {
                 arm.step(1e-3);
@@ -240,29 +247,8 @@ fn bad_actuator_faults_are_refused_naming_the_key() {
             "factor",
         ),
     ];
-    let tmp = tempfile::tempdir().unwrap();
     for (body, key) in cases {
-        let base = std::fs::read_to_string(common::repo("assets/scenarios/paper_healthy.toml"))
-            .unwrap()
-            .replace(
-                "../../urdf/",
-                &format!("{}/", common::repo("urdf").display()),
-            );
-        let path = tmp.path().join("bad.toml");
-        std::fs::write(&path, format!("{base}\n[[actuator_faults]]\n{body}\n")).unwrap();
-        let out = std::process::Command::new(env!("CARGO_BIN_EXE_aift"))
-            .args(["run", path.to_str().unwrap(), "--out"])
-            .arg(tmp.path().join("out"))
-            .output()
-            .unwrap();
-        let stderr = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(2), "{body}: {stderr}");
-        assert!(stderr.contains(key), "{body}: {stderr} does not name {key}");
-        assert!(stderr.contains("bad.toml"), "{body}: {stderr}");
-        assert!(
-            !tmp.path().join("out").exists(),
-            "{body}: no output written"
-        );
+        common::assert_refused(&format!("[[actuator_faults]]\n{body}"), key);
     }
 }
 
@@ -324,6 +310,4 @@ fn actuator_faults_are_reported_with_the_alarms_they_drew() {
         (got - mse).abs() <= 1e-12 * mse.max(1e-300),
         "{got} vs {mse}"
     );
-    // No sensor fault: every detection is a false alarm.
-    assert_eq!(result.false_alarms, result.detections.len());
 }

@@ -85,25 +85,24 @@ fn the_residual_converges_to_an_unexplained_torque_on_its_joint() {
         r[k63][3]
     );
     let after = (5.0 / gain / 1e-3) as usize;
+    // After 5 / K: within 1 % of 4 N m from the filter, plus the rectangle rule's error (the
+    // fault-free run's residual at the same tick) and 0.05 N m.
     for k in after..r.len() {
-        assert!(
-            (r[k][3] - 4.0).abs() < 0.04 + 0.3,
-            "tick {k}: r4 {}",
-            r[k][3]
-        );
+        let err = (r[k][3] - 4.0).abs() - fault_free[k][3].abs();
+        assert!(err < 0.04 + 0.05, "tick {k}: r4 {}", r[k][3]);
     }
     let last = r.len() - 1;
     eprintln!("r at 0.5 s: {:?}", r[last]);
-    assert!((r[last][3] - 4.0).abs() < 0.3, "r4 = {}", r[last][3]);
+    // Measured: 3.92 N m on joint 4, at most 0.05 N m elsewhere.
+    assert!((r[last][3] - 4.0).abs() < 0.1, "r4 = {}", r[last][3]);
     for j in [0, 1, 2, 4, 5, 6] {
         assert!(
-            r[last][j].abs() < 0.3,
+            r[last][j].abs() < 0.1,
             "joint {}: r = {}",
             j + 1,
             r[last][j]
         );
     }
-    assert!(fault_free[last][3].abs() < 0.3);
 }
 
 /// The closed loop on the Panda with the scenario's model error: healthy runs on fresh seeds
@@ -149,7 +148,8 @@ fn actuator_faults_are_detected_and_isolated_without_healthy_alarms() {
             r.momentum.as_ref().unwrap().largest
         );
         assert_eq!(a.momentum_joint, Some(joint - 1), "joint {joint} {kind}");
-        assert!(a.momentum_delay.unwrap() < 0.5, "joint {joint} {kind}");
+        // Measured: 1 ms, 27 ms and 100 ms.
+        assert!(a.momentum_delay.unwrap() < 0.2, "joint {joint} {kind}");
         assert_eq!(r.momentum.unwrap().false_alarms, 0);
     }
 }

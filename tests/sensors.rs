@@ -486,7 +486,16 @@ fn fault_specs_are_validated_field_by_field() {
             "{s:?}"
         );
     }
-    // A delay's memory is bounded in ticks: 1 s of 1 us ticks is 1e6 readings per channel.
+    // A delay's memory is bounded in ticks: 1 s of 1 us ticks is 1e6 readings per channel; and
+    // over a scenario's faults in all (checked by the scenario: 200 delays of 10 s on the
+    // paper arm's 6 channels would keep 12e6 readings).
+    let many: String = (0..200)
+        .map(|_| {
+            "[[faults]]\nchannel = [\"enc\", \"tach\", \"cam\"]\nkind = \"delayed\"\n\
+             start = 1.0\ndelay = 10.0\n"
+        })
+        .collect();
+    common::assert_refused(&many, "faults");
     let long = spec("enc1", FaultKind::Delayed { delay: 1.0 }, 1.0, None);
     assert!(long.to_fault(&layout2(), 1e-3).is_ok());
     assert_eq!(long.to_fault(&layout2(), 1e-6).unwrap_err().field, "delay");

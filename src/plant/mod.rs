@@ -83,9 +83,9 @@ pub trait Plant: ArmPose + Send {
     /// a link; empty: none).
     fn set_external_forces(&mut self, forces: &[ExternalForce]);
 
-    /// The total force (N, world frame) the environment's obstacles exert on the arm over the
-    /// last step; zero for a plant without contact.
-    fn contact_force(&self) -> nalgebra::Vector3<f64> {
+    /// The normal part of the force (N, world frame) the environment's obstacles exert on the
+    /// arm over the last step (friction left out); zero for a plant without contact.
+    fn contact_normal_force(&self) -> nalgebra::Vector3<f64> {
         nalgebra::Vector3::zeros()
     }
 

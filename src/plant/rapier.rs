@@ -467,9 +467,9 @@ impl Plant for RapierPlant {
         self.external.extend_from_slice(forces);
     }
 
-    /// The sum over the arm's touching contact pairs of their impulse over the last step / dt,
-    /// as the force on the arm.
-    fn contact_force(&self) -> Vector3<f64> {
+    /// The sum over the arm's touching contact pairs of their normal impulse over the last step
+    /// / dt, as the force on the arm (rapier's `total_impulse` holds no friction impulse).
+    fn contact_normal_force(&self) -> Vector3<f64> {
         let dt = self.world.integration_parameters.dt;
         let mut total = Vector3::zeros();
         for pair in self.world.narrow_phase.contact_pairs() {

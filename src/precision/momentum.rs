@@ -34,8 +34,9 @@ pub struct MomentumConfig {
     /// Observer gain K (1/s): the residual follows an unexplained joint torque with time
     /// constant 1/K.
     pub gain: f64,
-    /// Healthy runs (the scenario without faults, `no-ft`, seeds apart from any run's) the
-    /// thresholds are calibrated on.
+    /// Healthy runs (the scenario without faults, `no-ft`, seeds from 2^41) the thresholds are
+    /// calibrated on. They are the no-ft belief's residuals: another method's belief (the
+    /// hybrid's, a Kalman filter's) may leave other residuals on healthy runs.
     pub calibration_runs: usize,
     /// Threshold per joint: `margin` x the largest |r_j| the healthy runs showed.
     pub margin: f64,

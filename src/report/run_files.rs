@@ -116,7 +116,7 @@ pub fn summary_json(setup: &RunSetup, result: &RunResult) -> serde_json::Value {
             "sensor_alarms": d.sensor_alarms,
             "momentum_alarms": d.momentum_alarms,
         })).collect::<Vec<_>>(),
-        "max_contact_force": result.max_contact_force,
+        "max_contact_normal_force": result.max_contact_normal_force,
         "momentum": result.momentum.as_ref().map(|m| json!({
             "thresholds": m.thresholds,
             "largest": m.largest,

@@ -27,7 +27,9 @@ impl Observer for InnovationSums<'_> {
 /// Runs `runs` healthy seeds (in parallel, reduced in seed order: the result does not depend on
 /// the thread count) and returns the per-tick innovation statistics.
 pub fn calibrate(setup: &RunSetup, runs: usize) -> Result<Calibration, ScenarioError> {
-    let healthy = setup.healthy();
+    let mut healthy = setup.healthy();
+    // The detector's statistics do not need the momentum observer.
+    healthy.loaded.scenario.momentum.enabled = false;
     let sc = setup.scenario();
     let layout = setup.layout;
     let ticks = sc.ticks() as usize;

@@ -411,9 +411,22 @@ impl Scenario {
         if self.faults.len() > MAX_FAULTS {
             return Err(SettingError::new("faults", format!("at most {MAX_FAULTS}")));
         }
+        let mut delay_readings = 0u64;
         for (i, f) in self.faults.iter().enumerate() {
-            f.to_fault(layout, self.dt)
+            let fault = f
+                .to_fault(layout, self.dt)
                 .map_err(|e| e.within(&format!("faults[{i}]")))?;
+            delay_readings = delay_readings.saturating_add(fault.delay_readings(self.dt));
+        }
+        if delay_readings > crate::sensors::faults::MAX_DELAY_READINGS {
+            return Err(SettingError::new(
+                "faults",
+                format!(
+                    "the delayed faults keep {delay_readings} readings (delay ticks x channels); \
+                     at most {}",
+                    crate::sensors::faults::MAX_DELAY_READINGS
+                ),
+            ));
         }
         if self.actuator_faults.len() > MAX_FAULTS {
             return Err(SettingError::new(

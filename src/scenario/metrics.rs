@@ -162,7 +162,7 @@ pub struct RunResult {
     /// The momentum observer's findings, when it runs.
     pub momentum: Option<MomentumSummary>,
     /// The largest force the obstacles exerted on the arm (N; 0 without contact).
-    pub max_contact_force: f64,
+    pub max_contact_normal_force: f64,
     /// Health per channel at the end.
     pub final_health: Vec<f64>,
     /// Lowest health per channel over the last 5 s.
@@ -365,7 +365,10 @@ impl RunMetrics {
         let (detection_kind, events) = self.detection_events(detection);
         let first = events.first();
         let detected_at = first.map(|(k, _)| *k as f64 * dt);
-        let false_alarm = match (first, self.first_fault) {
+        // Sensor alarms judged against the sensor faults alone (an actuator fault is no reason
+        // for one).
+        let first_sensor_fault = self.faults.iter().map(|f| f.start_tick(dt)).min();
+        let false_alarm = match (first, first_sensor_fault) {
             (Some((d, _)), Some(f)) => *d < f,
             (Some(_), None) => true,
             (None, _) => false,
@@ -441,7 +444,7 @@ impl RunMetrics {
             actuator_faults,
             disturbances,
             momentum,
-            max_contact_force: 0.0,
+            max_contact_normal_force: 0.0,
             final_health: self.health,
             min_health_last_5s: self.min_health_last,
             channels: self.layout.names(),

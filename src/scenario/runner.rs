@@ -294,8 +294,8 @@ pub struct Simulation {
     applied: Vec<f64>,
     /// The momentum observer beside the method (`[momentum] enabled`).
     momentum: Option<crate::precision::MomentumMonitor>,
-    /// The largest contact force on the arm so far (N).
-    max_contact_force: f64,
+    /// The largest normal contact force on the arm so far (N).
+    max_contact_normal_force: f64,
     torques: Vec<f64>,
     free_energy: f64,
     /// The belief before this tick's update, for a law that reads it (`controller.belief =
@@ -382,7 +382,7 @@ impl Simulation {
             believed_last: vec![0.0; n],
             believed: vec![0.0; n],
             applied: vec![0.0; n],
-            max_contact_force: 0.0,
+            max_contact_normal_force: 0.0,
             momentum: sc.momentum.enabled.then(|| {
                 crate::precision::MomentumMonitor::new(
                     crate::precision::MomentumObserver::new(
@@ -574,7 +574,9 @@ impl Simulation {
         self.disturbances.apply(self.tick, self.arm.as_mut());
         self.arm.set_torques(&self.applied);
         self.arm.step(self.dt);
-        self.max_contact_force = self.max_contact_force.max(self.arm.contact_force().norm());
+        self.max_contact_normal_force = self
+            .max_contact_normal_force
+            .max(self.arm.contact_normal_force().norm());
         self.believed_last.copy_from_slice(&self.believed);
         self.tick += 1;
         self.decided = false;
@@ -586,8 +588,8 @@ impl Simulation {
     }
 
     /// The largest force the obstacles exerted on the arm so far (N; 0 without contact).
-    pub fn max_contact_force(&self) -> f64 {
-        self.max_contact_force
+    pub fn max_contact_normal_force(&self) -> f64 {
+        self.max_contact_normal_force
     }
 
     /// The momentum observer, when the scenario runs one.
@@ -758,7 +760,7 @@ impl<'a> Run<'a> {
         observers.finish(&outcome);
         extra.finish(&outcome);
         let (q, _) = sim.arm().state();
-        let max_contact_force = sim.max_contact_force();
+        let max_contact_normal_force = sim.max_contact_normal_force();
         let mut result = metrics.finish(
             &label,
             seed,
@@ -767,7 +769,7 @@ impl<'a> Run<'a> {
             (sim.detection(), sim.momentum()),
             wall_seconds,
         );
-        result.max_contact_force = max_contact_force;
+        result.max_contact_normal_force = max_contact_normal_force;
         Ok(result)
     }
 }

@@ -395,6 +395,7 @@ pub fn fingerprint(setup: &RunSetup) -> String {
     s.faults.clear();
     s.actuator_faults.clear();
     s.disturbances.clear();
+    s.momentum = Default::default();
     s.seed = 0;
     s.record_every = 1;
     s.precision = PrecisionConfig {

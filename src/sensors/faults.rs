@@ -63,7 +63,7 @@ pub enum FaultKind {
     /// The reading is the one of `delay` seconds before (rounded up to whole ticks; missing
     /// when the run is younger than that). Latency on joint feedback.
     Delayed {
-        /// Age of the reading delivered (s), at most [`MAX_DELAY`] and [`MAX_DELAY_TICKS`] ticks.
+        /// Age of the reading delivered (s), at most 10 s and 100 000 ticks.
         delay: f64,
     },
     /// The reading is sampled at the fault's first tick and every `period` seconds after, and
@@ -88,6 +88,9 @@ pub enum FaultKind {
         high: f64,
     },
 }
+
+/// Most readings the delayed faults of one run keep in all (delay ticks x channels, summed).
+pub const MAX_DELAY_READINGS: u64 = 10_000_000;
 
 /// Longest [`FaultKind::Delayed`] delay (s).
 pub const MAX_DELAY: f64 = 10.0;
@@ -339,6 +342,14 @@ impl FaultSpec {
 }
 
 impl Fault {
+    /// Readings a delayed fault keeps (delay ticks + 1 per channel hit; 0 for other kinds).
+    pub fn delay_readings(&self, dt: f64) -> u64 {
+        match self.kind {
+            FaultKind::Delayed { delay } => (tick_at(delay, dt) + 1) * self.channels.len() as u64,
+            _ => 0,
+        }
+    }
+
     /// Whether the fault hits channel index `c`.
     pub fn hits(&self, c: usize) -> bool {
         self.channels.binary_search(&c).is_ok()
@@ -395,21 +406,18 @@ impl ActiveFault {
         rng.set_stream(SPIKE_STREAM_BASE + index as u64);
         let (delay_ticks, period_ticks, gap_ticks) = match fault.kind {
             FaultKind::Delayed { delay } => (tick_at(delay, dt) as usize, 0, 0),
-            FaultKind::Slow { period } => (0, period_ticks(period, dt), 0),
+            FaultKind::Slow { period } => (0, period_ticks(period, dt).max(2), 0),
             FaultKind::Intermittent { period, duty } => {
-                let p = period_ticks(period, dt);
+                let p = period_ticks(period, dt).max(2);
                 let gap = ((duty * p as f64).round() as u64).clamp(1, p - 1);
                 (0, p, gap)
             }
             _ => (0, 0, 0),
         };
+        // Each delay line grows to delay_ticks + 1 as the readings come (the scenario bounds the
+        // total over its faults: MAX_DELAY_READINGS).
         let history = if matches!(fault.kind, FaultKind::Delayed { .. }) {
-            (0..n_channels)
-                .map(|c| {
-                    let len = if fault.hits(c) { delay_ticks + 1 } else { 0 };
-                    std::collections::VecDeque::with_capacity(len)
-                })
-                .collect()
+            vec![std::collections::VecDeque::new(); n_channels]
         } else {
             Vec::new()
         };

@@ -214,6 +214,37 @@ pub fn aift_in(args: &[&str], dir: &std::path::Path) -> std::process::Output {
     aift_command(args, dir).output().unwrap()
 }
 
+/// A bundled scenario's text with its URDF path made absolute (to be written anywhere).
+pub fn scenario_text(file: &str) -> String {
+    std::fs::read_to_string(repo(&format!("assets/scenarios/{file}")))
+        .unwrap()
+        .replace("../../urdf/", &format!("{}/", repo("urdf").display()))
+}
+
+/// `aift run` on `paper_healthy.toml` with `extra` appended refuses it before any work: exit 2,
+/// the file and `key` named on stderr, no output folder.
+pub fn assert_refused(extra: &str, key: &str) {
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().join("bad.toml");
+    std::fs::write(
+        &path,
+        format!("{}\n{extra}\n", scenario_text("paper_healthy.toml")),
+    )
+    .unwrap();
+    let out = aift_in(&["run", path.to_str().unwrap(), "--out", "out"], tmp.path());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{extra}: {stderr}");
+    assert!(
+        stderr.contains(key),
+        "{extra}: {stderr} does not name {key}"
+    );
+    assert!(stderr.contains("bad.toml"), "{extra}: {stderr}");
+    assert!(
+        !tmp.path().join("out").exists(),
+        "{extra}: no output written"
+    );
+}
+
 /// The `*.toml` files of a folder of the repository, sorted.
 pub fn toml_files(folder: &str) -> Vec<PathBuf> {
     let mut files: Vec<PathBuf> = std::fs::read_dir(repo(folder))

@@ -215,6 +215,8 @@ fn run_job(
         })
         .flat_map(|f| f.joints.iter().copied())
         .collect();
+    // Every joint lost: there is no rest of the arm; judge them all.
+    let lost = if lost.len() >= n { Vec::new() } else { lost };
     let judged_joints = || (0..n).filter(|j| !lost.contains(j));
     let judged = judged_joints()
         .map(|j| r.final_error_per_joint[j])
