@@ -34,7 +34,7 @@ pub mod scenario;
 pub mod sensors;
 mod settings;
 
-pub use settings::{SettingError, tick_at};
+pub use settings::{SettingError, check_window, tick_at};
 
 /// Most worker threads aift's thread pool is given, whatever `RAYON_NUM_THREADS` asks for:
 /// four per core, and at least 64 (`RAYON_NUM_THREADS=100000` spent minutes creating threads).

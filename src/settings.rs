@@ -33,3 +33,17 @@ impl SettingError {
 pub fn tick_at(t: f64, dt: f64) -> u64 {
     (t / dt - 1e-6).ceil().max(0.0) as u64
 }
+
+/// Checks a timed event's window: `start` finite and >= 0, `end` (if any) finite and after it.
+/// On error returns the offending field (`start` or `end`) and why.
+pub fn check_window(start: f64, end: Option<f64>) -> Result<(), SettingError> {
+    if !start.is_finite() || start < 0.0 {
+        return Err(SettingError::new("start", "must be finite and >= 0"));
+    }
+    if let Some(end) = end
+        && (!end.is_finite() || end <= start)
+    {
+        return Err(SettingError::new("end", "must be finite and after start"));
+    }
+    Ok(())
+}

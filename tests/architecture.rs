@@ -35,7 +35,7 @@ fn uses(path: &Path) -> BTreeSet<String> {
             // `crate::SettingError`, `crate::tick_at` and `crate::error_chain` are the crate
             // root's (settings, fsio).
             let name = match name.as_str() {
-                "SettingError" | "tick_at" => "settings".to_string(),
+                "SettingError" | "tick_at" | "check_window" => "settings".to_string(),
                 "error_chain" => "fsio".to_string(),
                 _ => name,
             };

@@ -116,8 +116,8 @@ fn a_push_acts_as_j_transpose_f() {
 /// The closed loop on the Panda: a 0.5 kg payload picked up at 3 s and a 60 N push on link 4 from
 /// 5 s to 5.3 s. Every method finishes at its target (no runaway); the alarms each draws are
 /// counted in summary.json's `disturbances`, and the momentum observer sees the push (its alarm
-/// is a detection of an unexplained torque, not of a fault; the payload's 2.5 N m or so on
-/// joint 2 is below the healthy runs' residuals from model error, so it goes unseen).
+/// is a detection of an unexplained torque, not of a fault; the payload's torque is below the
+/// thresholds the healthy runs' model error sets, so it goes unseen).
 #[test]
 fn payload_and_push_in_the_closed_loop() {
     let d = "[[disturbances]]\nkind = \"payload\"\nlink = \"ee\"\nstart = 3.0\nmass = 0.5\n\n\

@@ -195,14 +195,7 @@ impl ActuatorFaultSpec {
         }
         joints.sort_unstable();
         joints.dedup();
-        if !self.start.is_finite() || self.start < 0.0 {
-            return Err(SettingError::new("start", "must be finite and >= 0"));
-        }
-        if let Some(end) = self.end
-            && (!end.is_finite() || end <= self.start)
-        {
-            return Err(SettingError::new("end", "must be finite and after start"));
-        }
+        crate::check_window(self.start, self.end)?;
         self.kind.validate(dt)?;
         let label = joints
             .iter()

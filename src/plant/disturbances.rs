@@ -133,14 +133,7 @@ impl DisturbanceSpec {
                 "each component must be finite and at most 1e3 m",
             ));
         }
-        if !self.start.is_finite() || self.start < 0.0 {
-            return Err(SettingError::new("start", "must be finite and >= 0"));
-        }
-        if let Some(end) = self.end
-            && (!end.is_finite() || end <= self.start)
-        {
-            return Err(SettingError::new("end", "must be finite and after start"));
-        }
+        crate::check_window(self.start, self.end)?;
         self.kind.validate()?;
         let point = frame
             .pose
@@ -164,11 +157,17 @@ impl Disturbance {
     }
 }
 
+/// Whether `tick` is in the window [start, end).
+fn acts(&(start, end): &(u64, Option<u64>), tick: u64) -> bool {
+    tick >= start && end.is_none_or(|e| tick < e)
+}
+
 /// The disturbances of a run, applied to the plant tick by tick.
 #[derive(Clone, Debug)]
 pub struct Disturbances {
     items: Vec<Disturbance>,
-    dt: f64,
+    /// Each item's first tick and first tick after it (None: until the end).
+    windows: Vec<(u64, Option<u64>)>,
     /// Per body: the payload (mass, centroid) last set on the plant.
     payloads: Vec<Option<(f64, Vector3<f64>)>>,
     forces: Vec<ExternalForce>,
@@ -178,8 +177,11 @@ pub struct Disturbances {
 impl Disturbances {
     pub fn new(items: &[Disturbance], bodies: usize, dt: f64) -> Self {
         Self {
+            windows: items
+                .iter()
+                .map(|d| (tick_at(d.start, dt), d.end.map(|e| tick_at(e, dt))))
+                .collect(),
             items: items.to_vec(),
-            dt,
             payloads: vec![None; bodies],
             forces: Vec::new(),
             pushing: false,
@@ -195,10 +197,10 @@ impl Disturbances {
         for b in 1..self.payloads.len() {
             let mut mass = 0.0;
             let mut moment = Vector3::zeros();
-            for d in &self.items {
+            for (d, w) in self.items.iter().zip(&self.windows) {
                 if let DisturbanceKind::Payload { mass: m } = d.kind
                     && d.body == b
-                    && d.active_at(tick, self.dt)
+                    && acts(w, tick)
                 {
                     mass += m;
                     moment += d.point * m;
@@ -211,9 +213,9 @@ impl Disturbances {
             }
         }
         self.forces.clear();
-        for d in &self.items {
+        for (d, w) in self.items.iter().zip(&self.windows) {
             if let DisturbanceKind::Push { force } = &d.kind
-                && d.active_at(tick, self.dt)
+                && acts(w, tick)
             {
                 self.forces.push(ExternalForce {
                     body: d.body,

@@ -144,26 +144,15 @@ impl MomentumObserver {
                 }
                 self.dynamics.set_configuration(&self.shifted);
                 self.dynamics.compute(qd);
-                let m = self.dynamics.mass_matrix();
-                for r in 0..n {
-                    let mut s = 0.0;
-                    for c in 0..n {
-                        s += m[(r, c)] * qd[c];
-                    }
-                    self.m_dot_qd[r] += sign * s / (2.0 * eps);
+                momentum_into(self.dynamics.mass_matrix(), qd, &mut self.p);
+                for (d, p) in self.m_dot_qd.iter_mut().zip(&self.p) {
+                    *d += sign * p / (2.0 * eps);
                 }
             }
         }
         self.dynamics.set_configuration(q);
         self.dynamics.compute(qd);
-        let m = self.dynamics.mass_matrix();
-        for r in 0..n {
-            let mut s = 0.0;
-            for c in 0..n {
-                s += m[(r, c)] * qd[c];
-            }
-            self.p[r] = s;
-        }
+        momentum_into(self.dynamics.mass_matrix(), qd, &mut self.p);
         if self.started {
             for i in 0..n {
                 self.integral[i] += self.rate[i] * dt;
@@ -181,6 +170,13 @@ impl MomentumObserver {
                 + self.residual[i];
         }
         &self.residual
+    }
+}
+
+/// p = M qd, into `p`, without allocating.
+fn momentum_into(m: &nalgebra::DMatrix<f64>, qd: &[f64], p: &mut [f64]) {
+    for (r, out) in p.iter_mut().enumerate() {
+        *out = (0..qd.len()).fold(0.0, |s, c| s + m[(r, c)] * qd[c]);
     }
 }
 

@@ -318,17 +318,7 @@ impl FaultSpec {
         }
         channels.sort_unstable();
         channels.dedup();
-        if !self.start.is_finite() || self.start < 0.0 {
-            return Err(crate::SettingError::new("start", "must be finite and >= 0"));
-        }
-        if let Some(end) = self.end
-            && (!end.is_finite() || end <= self.start)
-        {
-            return Err(crate::SettingError::new(
-                "end",
-                "must be finite and after start",
-            ));
-        }
+        crate::check_window(self.start, self.end)?;
         self.kind.validate()?;
         self.kind.validate_at(dt)?;
         Ok(Fault {
