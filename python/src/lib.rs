@@ -613,7 +613,8 @@ fn run_campaign(
         j.remove().map_err(file_err)?;
     }
     let (cells, methods) = campaign::summarise(&campaign, &records.runs);
-    Ok(campaign_files::campaign_json(&campaign, &records, &cells, &methods).to_string())
+    let pairs = campaign::compare_all(&campaign, &records.runs, campaign::compare::ALPHA);
+    Ok(campaign_files::campaign_json(&campaign, &records, &cells, &methods, &pairs).to_string())
 }
 
 /// The closed loop stepped from Python: `reset(seed)` senses, estimates and controls tick 0;

@@ -14,8 +14,8 @@ use serde_json::json;
 use super::{ReportError, write_atomic};
 use crate::scenario::Method;
 use crate::scenario::campaign::{
-    CAMPAIGN_FORMAT, Campaign, CampaignRecords, CellSummary, MethodSummary, ReachingProtocol,
-    Verdict, summarise,
+    Better, CAMPAIGN_FORMAT, Campaign, CampaignRecords, CellSummary, MethodSummary, PairComparison,
+    ReachingProtocol, Verdict, compare, compare_all, summarise,
 };
 
 /// The records file of a run or shard.
@@ -111,6 +111,7 @@ pub fn write_campaign(
     records: &CampaignRecords,
 ) -> Result<(), ReportError> {
     let (cells, methods) = summarise(campaign, &records.runs);
+    let pairs = compare_all(campaign, &records.runs, compare::ALPHA);
     write_atomic(
         &dir.join(RECORDS),
         serde_json::to_string(records)
@@ -119,14 +120,15 @@ pub fn write_campaign(
     )?;
     write_atomic(
         &dir.join("campaign.csv"),
-        csv(campaign, records, &cells).as_bytes(),
+        csv(campaign, records, &cells, &pairs).as_bytes(),
     )?;
     write_atomic(
         &dir.join("campaign.md"),
-        markdown(campaign, records, &cells, &methods).as_bytes(),
+        markdown(campaign, records, &cells, &methods, &pairs).as_bytes(),
     )?;
-    let j = serde_json::to_string_pretty(&campaign_json(campaign, records, &cells, &methods))
-        .expect("serialisable");
+    let j =
+        serde_json::to_string_pretty(&campaign_json(campaign, records, &cells, &methods, &pairs))
+            .expect("serialisable");
     write_atomic(&dir.join(CAMPAIGN_JSON), j.as_bytes())?;
     if !records.reaching.is_empty() {
         write_atomic(
@@ -145,9 +147,14 @@ pub fn write_campaign(
     super::html::write_report(dir).map(|_| ())
 }
 
-fn csv(campaign: &Campaign, records: &CampaignRecords, cells: &[CellSummary]) -> String {
+fn csv(
+    campaign: &Campaign,
+    records: &CampaignRecords,
+    cells: &[CellSummary],
+    pairs: &[PairComparison],
+) -> String {
     let mut out = String::from(
-        "row,arm,cell,channel,kind,onset,method,seed,outcome,verdict,mse_post,mse_post_std,ratio_to_oracle,max_final_error,runaway,detected,detection_delay,isolation_correct,false_alarms,false_alarms_per_hour,recover_time,worse_than_no_ft\n",
+        "row,arm,cell,channel,kind,onset,method,seed,outcome,verdict,mse_post,mse_post_std,ratio_to_oracle,max_final_error,runaway,detected,detection_delay,isolation_correct,false_alarms,false_alarms_per_hour,recover_time,worse_than_no_ft,method_b,median_log10_ratio,w_plus,w_minus,p_value,better\n",
     );
     let cell_cols = |c: usize| {
         let cell = &campaign.cells[c];
@@ -163,7 +170,7 @@ fn csv(campaign: &Campaign, records: &CampaignRecords, cells: &[CellSummary]) ->
     for r in &records.runs {
         let _ = writeln!(
             out,
-            "run,{},{},{},{},{},{},,,{},{},{},{},{},{},,{},",
+            "run,{},{},{},{},{},{},,,{},{},{},{},{},{},,{},,,,,,,",
             cell_cols(r.cell),
             r.method,
             r.seed,
@@ -182,7 +189,7 @@ fn csv(campaign: &Campaign, records: &CampaignRecords, cells: &[CellSummary]) ->
     for s in cells {
         let _ = writeln!(
             out,
-            "cell,{},{},{},,{},{},{},{},{},{},{},{},{},,{},{},{}",
+            "cell,{},{},{},,{},{},{},{},{},{},{},{},{},,{},{},{},,,,,,",
             cell_cols(s.cell),
             s.method,
             s.seeds,
@@ -200,6 +207,79 @@ fn csv(campaign: &Campaign, records: &CampaignRecords, cells: &[CellSummary]) ->
             s.worse_than_no_ft,
         );
     }
+    for p in pairs {
+        let _ = writeln!(
+            out,
+            "pair,{},{},{},,,,,,,,,,,,,,,{},{},{},{},{},{}",
+            cell_cols(p.cell),
+            p.a,
+            p.seeds,
+            p.b,
+            p.median_log10_ratio,
+            p.test.w_plus,
+            p.test.w_minus,
+            p.test.p_value,
+            better_name(p),
+        );
+    }
+    out
+}
+
+/// The method a comparison favours, or `neither`.
+fn better_name(p: &PairComparison) -> &'static str {
+    match p.better {
+        Better::A => p.a.name(),
+        Better::B => p.b.name(),
+        Better::Neither => "neither",
+    }
+}
+
+/// The campaign.md section of paired comparisons: per ordered pair, the cells where the row's
+/// method is better than the column's at 95 %.
+fn comparisons_markdown(campaign: &Campaign, pairs: &[PairComparison]) -> String {
+    let m = &campaign.methods;
+    let seeds = campaign.config.seeds;
+    let mut out = format!(
+        "\n## Paired comparisons\n\nEntry (row A, column B): the cells where A's post-fault MSE is \
+         lower than B's at the 5 % level (two-sided Wilcoxon signed-rank test over the {seeds} \
+         seeds paired by seed, on log10 of the MSE ratio; a diverged run counts as the worst; \
+         exact p-values; no correction for the number of cells: with no real difference about \
+         2.5 % of cells favour each side by chance). Out of the cells both methods ran.\n"
+    );
+    if compare::smallest_p_value(seeds) >= compare::ALPHA {
+        let _ = writeln!(
+            out,
+            "\nWith {seeds} seeds the smallest p-value the test can give is {:.3}: no cell can \
+             reach 5 % (6 seeds are needed).",
+            compare::smallest_p_value(seeds)
+        );
+    }
+    out += "\n| A better than B |";
+    for b in m {
+        let _ = write!(out, " {b} |");
+    }
+    out += "\n|---|";
+    out += &"---|".repeat(m.len());
+    out += "\n";
+    for &a in m {
+        let _ = write!(out, "| {a} |");
+        for &b in m {
+            if a == b {
+                out += " - |";
+                continue;
+            }
+            let (wins, of) = pairs
+                .iter()
+                .filter(|p| (p.a, p.b) == (a, b) || (p.a, p.b) == (b, a))
+                .fold((0, 0), |(w, n), p| {
+                    let a_wins =
+                        (p.a == a && p.better == Better::A) || (p.b == a && p.better == Better::B);
+                    (w + usize::from(a_wins), n + 1)
+                });
+            let _ = write!(out, " {wins}/{of} |");
+        }
+        out += "\n";
+    }
     out
 }
 
@@ -208,6 +288,7 @@ fn markdown(
     records: &CampaignRecords,
     cells: &[CellSummary],
     methods: &[MethodSummary],
+    pairs: &[PairComparison],
 ) -> String {
     let c = &campaign.config;
     // Run seeds other than 1, 2, ... (an evaluation campaign's) are named.
@@ -263,6 +344,9 @@ fn markdown(
                 m.fault_cells,
                 m.false_alarms_per_hour
             );
+        }
+        if campaign.methods.len() > 1 {
+            out += &comparisons_markdown(campaign, pairs);
         }
     }
     for (a, arm) in c.arms.iter().enumerate() {
@@ -440,6 +524,7 @@ pub fn campaign_json(
     records: &CampaignRecords,
     cells: &[CellSummary],
     methods: &[MethodSummary],
+    pairs: &[PairComparison],
 ) -> serde_json::Value {
     json!({
         "format_version": CAMPAIGN_FORMAT,
@@ -496,6 +581,23 @@ pub fn campaign_json(
             "fault_cells": m.fault_cells,
             "false_alarms_per_hour": m.false_alarms_per_hour,
         })).collect::<Vec<_>>(),
+        "comparisons": {
+            "test": "Wilcoxon signed-rank, two-sided, seeds paired, log10 of the post-fault MSE ratio a/b",
+            "alpha": compare::ALPHA,
+            "pairs": pairs.iter().map(|p| json!({
+                "cell": p.cell,
+                "a": p.a.name(),
+                "b": p.b.name(),
+                "seeds": p.seeds,
+                "nonzero_pairs": p.test.pairs,
+                "median_log10_ratio": p.median_log10_ratio,
+                "w_plus": p.test.w_plus,
+                "w_minus": p.test.w_minus,
+                "p_value": p.test.p_value,
+                "exact": p.test.exact,
+                "better": better_name(p),
+            })).collect::<Vec<_>>(),
+        },
         "reaching_heading": reaching_heading(campaign).0,
         "reaching_definition": reaching_heading(campaign).1,
         "reaching": reaching_rows(campaign, records).iter().map(|(a, m, v, unsettled, broken)| json!({

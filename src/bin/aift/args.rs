@@ -37,6 +37,9 @@ pub enum Command {
     Campaign(CampaignArgs),
     /// Merge the shards of a campaign into the files of the whole campaign.
     Merge(MergeArgs),
+    /// Compare two methods of a campaign cell by cell: the Wilcoxon signed-rank test over the
+    /// seeds (paired by seed) on log10 of their post-fault MSE ratio.
+    Compare(CompareArgs),
     /// Write report.html (a self-contained page: plots, tables, the scenario) into a run, table
     /// or campaign folder.
     Report(ReportArgs),
@@ -103,6 +106,22 @@ pub struct CampaignArgs {
     /// Discard the journal of an interrupted run and start from nothing.
     #[arg(long)]
     pub fresh: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct CompareArgs {
+    /// A campaign folder (written by `aift campaign` or `aift merge`: its records.json is read).
+    pub dir: PathBuf,
+    /// Method A (a name as in the campaign, e.g. hybrid).
+    pub a: String,
+    /// Method B.
+    pub b: String,
+    /// Two-sided significance level, in (0, 0.5].
+    #[arg(long, default_value_t = 0.05)]
+    pub alpha: f64,
+    /// Print the comparisons as JSON.
+    #[arg(long)]
+    pub json: bool,
 }
 
 #[derive(Debug, Args)]

@@ -15,8 +15,8 @@ use aift::scenario::campaign::{Campaign, CampaignRecords, CampaignRun, Shard};
 use aift::scenario::{self, LoadedScenario, Method, RunSetup, calibrate, table};
 
 use crate::args::{
-    BenchArgs, CalibrateArgs, CampaignArgs, CheckUrdfArgs, Cli, Command, GenArmArgs, InitArgs,
-    MergeArgs, RunArgs, ScenarioArgs, SimulateArgs, TableArgs, TrainGpArgs,
+    BenchArgs, CalibrateArgs, CampaignArgs, CheckUrdfArgs, Cli, Command, CompareArgs, GenArmArgs,
+    InitArgs, MergeArgs, RunArgs, ScenarioArgs, SimulateArgs, TableArgs, TrainGpArgs,
 };
 
 /// A line for people: on stdout, or on stderr when `--json` keeps stdout for one JSON document.
@@ -104,6 +104,7 @@ pub fn dispatch(cli: Cli) -> Result<(), Failure> {
         Command::Init(args) => init(args),
         Command::Campaign(args) => campaign(args),
         Command::Merge(args) => merge(args),
+        Command::Compare(args) => compare(args),
         Command::Report(args) => {
             let (kind, path) = report::html::write_report(&args.dir).map_err(report_failure)?;
             if args.json {
@@ -331,6 +332,128 @@ fn print_campaign_json(dir: &Path, shard: Shard, records: &CampaignRecords) -> R
             "records": dir.join(report::campaign_files::RECORDS),
         });
         outln!("{doc}");
+    }
+    Ok(())
+}
+
+/// `aift compare DIR A B`: the paired comparison of two methods in every cell of a campaign.
+fn compare(args: CompareArgs) -> Result<(), Failure> {
+    use aift::scenario::campaign::{Better, Campaign, compare_pair};
+    if !(args.alpha > 0.0 && args.alpha <= 0.5) {
+        return Err(bad_input(anyhow::anyhow!(
+            "--alpha {}: must be in (0, 0.5]",
+            args.alpha
+        )));
+    }
+    let records = report::campaign_files::read_records(&args.dir).map_err(report_failure)?;
+    let campaign = Campaign::plan(records.config.clone());
+    let method = |name: &str| -> Result<Method, Failure> {
+        let m = name
+            .parse::<Method>()
+            .map_err(|e| bad_input(anyhow!("method: {e}")))?;
+        if !campaign.methods.contains(&m) {
+            return Err(bad_input(anyhow::anyhow!(
+                "method {name}: not in campaign {} ({}; its methods: {})",
+                records.campaign,
+                args.dir.join(report::campaign_files::RECORDS).display(),
+                campaign
+                    .methods
+                    .iter()
+                    .map(|m| m.name())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )));
+        }
+        Ok(m)
+    };
+    let (a, b) = (method(&args.a)?, method(&args.b)?);
+    if a == b {
+        return Err(bad_input(anyhow::anyhow!("methods A and B are both {a}")));
+    }
+    let pairs = compare_pair(&campaign, &records.runs, a, b, args.alpha);
+    let count = |w: Better| pairs.iter().filter(|p| p.better == w).count();
+    let (a_wins, b_wins) = (count(Better::A), count(Better::B));
+    let label = |c: usize| {
+        let cell = &campaign.cells[c];
+        (
+            campaign.config.arms[cell.arm].name.clone(),
+            cell.label.clone(),
+        )
+    };
+    if args.json {
+        let doc = serde_json::json!({
+            "campaign": records.campaign,
+            "a": a.name(),
+            "b": b.name(),
+            "alpha": args.alpha,
+            "a_better": a_wins,
+            "b_better": b_wins,
+            "cells": pairs.len(),
+            "pairs": pairs.iter().map(|p| {
+                let (arm, cell) = label(p.cell);
+                serde_json::json!({
+                    "arm": arm,
+                    "cell": cell,
+                    "seeds": p.seeds,
+                    "median_log10_ratio": p.median_log10_ratio,
+                    "w_plus": p.test.w_plus,
+                    "w_minus": p.test.w_minus,
+                    "p_value": p.test.p_value,
+                    "exact": p.test.exact,
+                    "better": match p.better {
+                        Better::A => a.name(),
+                        Better::B => b.name(),
+                        Better::Neither => "neither",
+                    },
+                })
+            }).collect::<Vec<_>>(),
+        });
+        outln!("{doc}");
+        return Ok(());
+    }
+    outln!(
+        "{a} vs {b} in campaign {} (Wilcoxon signed-rank over the seeds, log10 of the post-fault \
+         MSE ratio {a}/{b}; two-sided, alpha {})",
+        records.campaign,
+        args.alpha
+    );
+    outln!(
+        "{:<14} {:<40} {:>5} {:>12} {:>10}  better",
+        "arm",
+        "cell",
+        "seeds",
+        "med log10",
+        "p"
+    );
+    for p in &pairs {
+        let (arm, cell) = label(p.cell);
+        outln!(
+            "{arm:<14} {cell:<40} {:>5} {:>12.3} {:>10.3e}  {}",
+            p.seeds,
+            p.median_log10_ratio,
+            p.test.p_value,
+            match p.better {
+                Better::A => a.name(),
+                Better::B => b.name(),
+                Better::Neither => "-",
+            }
+        );
+    }
+    outln!(
+        "{a} better than {b} in {a_wins} cells, {b} better in {b_wins}, no difference at {} in {} \
+         (of {} cells)",
+        args.alpha,
+        pairs.len() - a_wins - b_wins,
+        pairs.len()
+    );
+    let least = aift::scenario::campaign::compare::smallest_p_value(records.config.seeds);
+    if least >= args.alpha {
+        outln!(
+            "note: with {} seeds the smallest possible p-value is {least:.3}: no cell can reach \
+             alpha {}",
+            records.config.seeds,
+            args.alpha
+        );
     }
     Ok(())
 }

@@ -15,6 +15,7 @@
 //! with the second target removed, so the arm rests until the end; `rest-then-motion`, the fault
 //! at `onsets.rest` with the second target kept, so the arm moves after the fault.
 
+pub mod compare;
 mod config;
 mod grid;
 mod journal;
@@ -28,6 +29,7 @@ use std::path::{Path, PathBuf};
 use super::{LoadedScenario, Method, RunSetup, ScenarioError};
 use crate::fsio;
 
+pub use compare::{Better, PairComparison, SignedRank, compare_all, compare_pair, signed_rank};
 pub use config::{
     ArmEntry, CampaignConfig, CampaignKind, GroupSizes, MAX_TARGETS_FILE_BYTES, Onset, OnsetConfig,
     PairEntry, ReachingConfig, ReachingProtocol, VerdictConfig, read_reaching_targets,
