@@ -27,6 +27,7 @@ pub mod control;
 pub mod estimation;
 pub mod fsio;
 pub mod gp;
+pub mod logs;
 pub mod plant;
 pub mod precision;
 pub mod report;

@@ -17,6 +17,7 @@ const STAGES: &[&str] = &[
     "control",
     "precision",
     "scenario",
+    "logs",
     "report",
 ];
 

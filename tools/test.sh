@@ -2,7 +2,8 @@
 # Every test: the Rust suite (`cargo test --release`), a single-node Slurm running the README's
 # job array (tools/slurm_test.sh), then the Python package and the HTML report in a browser (pytest, in a fresh virtual environment under target/, with the package
 # installed by `pip install ./python`). Installs what they need on a fresh machine: pytest,
-# numpy, pandas, gymnasium and playwright from PyPI, and Debian's chromium (plus python3-venv
+# numpy, pandas, gymnasium, playwright, mcap, mcap-ros2-support and rosbags (independent readers
+# and writers of MCAP and rosbag2) from PyPI, and Debian's chromium (plus python3-venv
 # if venv is missing) with apt-get, as root or with sudo.
 # AIFT_SCREENSHOTS=DIR keeps the report pages' screenshots in DIR.
 set -euo pipefail
@@ -38,7 +39,7 @@ venv="$root/target/pytest-venv"
 echo "== fresh virtual environment $venv; pip install ./python" >&2
 rm -rf "$venv"
 python3 -m venv "$venv"
-"$venv/bin/pip" install -q pytest numpy pandas gymnasium playwright
+"$venv/bin/pip" install -q pytest numpy pandas gymnasium playwright mcap mcap-ros2-support rosbags
 "$venv/bin/pip" install -q ./python
 # From outside python/, so that `import aift` is the installed package, not the source folder.
 cd "$venv"

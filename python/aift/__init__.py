@@ -150,15 +150,18 @@ def _scenario(scenario) -> Scenario:
 
 
 def run(scenario=None, method: Optional[str] = None, seed: Optional[int] = None, *,
-        out=None, force: bool = False, calib=None, trajectory: bool = True) -> RunResult:
+        out=None, force: bool = False, calib=None, trajectory: bool = True,
+        mcap: bool = False) -> RunResult:
     """Runs one (method, seed) of a scenario (a :class:`Scenario`, a path, or None for the
     default). Nothing touches disk unless ``out`` names a run folder to write (the CLI's files,
     whole or not at all). Methods with a detector calibrate it as the CLI does (``calib``, the
     scenario's file, or healthy runs cached in ``$AIFT_CACHE_DIR`` / ``~/.cache/aift``).
     ``trajectory=False`` keeps nothing of the trajectory in memory (``.trajectory`` is None; with
-    ``out`` the file has it): for runs longer than the in-memory bound of 2**27 values."""
+    ``out`` the file has it): for runs longer than the in-memory bound of 2**27 values.
+    ``mcap=True`` (with ``out``) also writes ``run.mcap``, the run as ROS 2 messages (the CLI's
+    ``--mcap``; docs/logs.md)."""
     summary, names, data = _aift.run(_scenario(scenario), method, seed, _path(out), force,
-                                     _path(calib), trajectory)
+                                     _path(calib), trajectory, mcap)
     return RunResult(json.loads(summary), Trajectory(names, data) if trajectory else None, _path(out))
 
 

@@ -394,7 +394,7 @@ fn columns_bytes<'py>(
 /// or not at all: an interrupted run leaves no folder). With `trajectory = false` nothing of
 /// the trajectory is held in memory (with `out`, the file has it).
 #[pyfunction]
-#[pyo3(signature = (scenario, method = None, seed = None, out = None, force = false, calib = None, trajectory = true))]
+#[pyo3(signature = (scenario, method = None, seed = None, out = None, force = false, calib = None, trajectory = true, mcap = false))]
 #[allow(clippy::too_many_arguments)]
 fn run<'py>(
     py: Python<'py>,
@@ -405,7 +405,13 @@ fn run<'py>(
     force: bool,
     calib: Option<PathBuf>,
     trajectory: bool,
+    mcap: bool,
 ) -> PyResult<RunOutput<'py>> {
+    if mcap && out.is_none() {
+        return Err(bad(
+            "mcap=True writes run.mcap into the run folder: pass out=",
+        ));
+    }
     let mut setup = scenario.prepare(py)?;
     let method = match method {
         Some(m) => parse_method(m, "method")?,
@@ -445,7 +451,10 @@ fn run<'py>(
             run = run.observe(c, ObserverMode::Every(every));
         }
         match &staged {
-            Some(staged) => run_files::run_staged(staged, run).map_err(report_err),
+            Some(staged) => {
+                run_files::run_staged_with(staged, run, &run_files::RunFileOptions { mcap })
+                    .map_err(report_err)
+            }
             None => run.execute().map_err(|e| scenario_err(e, &[])),
         }
     })?;

@@ -202,6 +202,24 @@ pub fn write_run(
 /// file while the run goes (every `record_every`-th tick), so memory does not grow with the run.
 /// The caller commits `staged` (or drops it, and nothing appears: after an interrupted run, say).
 pub fn run_staged(staged: &Staged, run: Run<'_>) -> Result<RunResult, ReportError> {
+    run_staged_with(staged, run, &RunFileOptions::default())
+}
+
+/// What a run folder holds beyond its fixed files.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RunFileOptions {
+    /// Also write the run as ROS 2 messages in an MCAP file (`run.mcap`; `crate::logs`). Off by
+    /// default: the file is written beside trajectory.csv, not instead of it, and costs about
+    /// as much time and disk as the CSV again.
+    pub mcap: bool,
+}
+
+/// [`run_staged`] with `options`.
+pub fn run_staged_with(
+    staged: &Staged,
+    run: Run<'_>,
+    options: &RunFileOptions,
+) -> Result<RunResult, ReportError> {
     let setup = run.setup();
     let method = run.method();
     let dir = staged.path().to_path_buf();
@@ -219,8 +237,43 @@ pub fn run_staged(staged: &Staged, run: Run<'_>) -> Result<RunResult, ReportErro
     let mut observers = Observers::new();
     observers.push(&mut writer, ObserverMode::Every(every));
     observers.push(&mut plot_rows, ObserverMode::Always);
+    let mcap_path = dir.join(crate::logs::RUN_MCAP);
+    let mcap_err = |e: mcap::McapError| fsio::FsError::Write {
+        path: mcap_path.clone(),
+        source: std::io::Error::other(e.to_string()),
+    };
+    let mut mcap = match options.mcap {
+        true => {
+            let file =
+                std::fs::File::create(&mcap_path).map_err(|source| fsio::FsError::Write {
+                    path: mcap_path.clone(),
+                    source,
+                })?;
+            Some(
+                crate::logs::McapRecorder::new(setup, std::io::BufWriter::new(file))
+                    .map_err(mcap_err)?,
+            )
+        }
+        false => None,
+    };
+    if let Some(m) = mcap.as_mut() {
+        observers.push(m, ObserverMode::Every(every));
+    }
     let result = run.execute_with(&mut observers)?;
     drop(observers);
+    if let Some(m) = mcap {
+        let file = m.finish().map_err(mcap_err)?;
+        file.into_inner()
+            .map_err(|e| fsio::FsError::Write {
+                path: mcap_path.clone(),
+                source: e.into_error(),
+            })?
+            .sync_all()
+            .map_err(|source| fsio::FsError::Write {
+                path: mcap_path.clone(),
+                source,
+            })?;
+    }
     let write_err = |source| fsio::FsError::Write {
         path: path.clone(),
         source,

@@ -230,6 +230,10 @@ pub struct RunArgs {
     /// Print one JSON document on stdout (the run's summary.json); everything else goes to stderr.
     #[arg(long)]
     pub json: bool,
+    /// Also write run.mcap: the run as ROS 2 messages (JointState readings, truth, belief;
+    /// precision, health, F, fault events) for Foxglove / Lichtblick, Rerun and ros2 bag.
+    #[arg(long)]
+    pub mcap: bool,
 }
 
 #[derive(Debug, Args)]

@@ -686,7 +686,8 @@ fn run(args: RunArgs) -> Result<(), Failure> {
     let run = scenario::Run::new(&setup, method)
         .seed(seed)
         .calibration(calibration.as_deref());
-    let result = run_files::run_staged(&staged, run).map_err(report_failure)?;
+    let options = run_files::RunFileOptions { mcap: args.mcap };
+    let result = run_files::run_staged_with(&staged, run, &options).map_err(report_failure)?;
     staged.commit().map_err(file_failure)?;
     say!(
         args.json,
@@ -699,9 +700,14 @@ fn run(args: RunArgs) -> Result<(), Failure> {
     print_run_result(args.json, &setup, &result);
     say!(
         args.json,
-        "wrote {}/: {}, {}, {}, plots {}, {}, {}, {}",
+        "wrote {}/: {}{}, {}, {}, plots {}, {}, {}, {}",
         dir.display(),
         run_files::TRAJECTORY,
+        if args.mcap {
+            format!(", {}", aift::logs::RUN_MCAP)
+        } else {
+            String::new()
+        },
         run_files::SUMMARY,
         run_files::RESOLVED,
         run_files::PLOT_JOINTS,
