@@ -33,6 +33,7 @@ __all__ = [
     "RunResult",
     "Rows",
     "run",
+    "replay",
     "table",
     "campaign",
     "report",
@@ -163,6 +164,21 @@ def run(scenario=None, method: Optional[str] = None, seed: Optional[int] = None,
     summary, names, data = _aift.run(_scenario(scenario), method, seed, _path(out), force,
                                      _path(calib), trajectory, mcap)
     return RunResult(json.loads(summary), Trajectory(names, data) if trajectory else None, _path(out))
+
+
+def replay(log, scenario=None, method: Optional[str] = None, *, out, seed: Optional[int] = None,
+           force: bool = False, calib=None, topic: Optional[str] = None,
+           camera_topic: Optional[str] = None) -> RunResult:
+    """Runs a method over a recorded log (``aift replay``): a rosbag2 bag folder or ``.mcap``
+    file with ``sensor_msgs/msg/JointState`` (effort = applied torque; ``topic`` or
+    ``/joint_states``), or a ``.csv`` with columns ``t``, ``applied<i>``, ``y_<channel>`` (a run's
+    trajectory.csv is one). The controller and plant are not in the loop. Writes the run folder
+    ``out`` (trajectory.csv with the plant's columns NaN, summary.json with a ``replay`` section,
+    plots, report.html); returns its summary (``.trajectory`` is None: read ``out``'s CSV).
+    Bad logs raise :class:`BadInput` naming the file and the field (docs/logs.md)."""
+    summary = _aift.replay(_path(log), _scenario(scenario), _path(out), method, seed, force,
+                           _path(calib), topic, camera_topic)
+    return RunResult(json.loads(summary), None, _path(out))
 
 
 def _methods(methods):

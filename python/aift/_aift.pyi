@@ -53,6 +53,9 @@ class Sim:
 
 def run(scenario: Scenario, method: Optional[str] = ..., seed: Optional[int] = ..., out: Optional[str] = ...,
         force: bool = ..., calib: Optional[str] = ..., trajectory: bool = ..., mcap: bool = ...) -> Tuple[str, List[str], bytes]: ...
+def replay(log: str, scenario: Scenario, out: str, method: Optional[str] = ..., seed: Optional[int] = ...,
+           force: bool = ..., calib: Optional[str] = ..., topic: Optional[str] = ...,
+           camera_topic: Optional[str] = ...) -> str: ...
 def run_table(scenario: Scenario, methods: Optional[List[str]] = ..., seeds: int = ..., out: Optional[str] = ...,
               force: bool = ..., calib: Optional[str] = ...) -> str: ...
 def run_campaign(path: Optional[str] = ..., seeds: Optional[int] = ..., methods: Optional[List[str]] = ...,

@@ -475,6 +475,58 @@ fn run<'py>(
     Ok((summary, names, bytes))
 }
 
+/// `aift replay`: `method` over a recorded log (a rosbag2 bag folder, a .mcap or a .csv) into
+/// the run folder `out`; returns summary.json's text.
+#[pyfunction]
+#[pyo3(signature = (log, scenario, out, method = None, seed = None, force = false, calib = None, topic = None, camera_topic = None))]
+#[allow(clippy::too_many_arguments)]
+fn replay(
+    py: Python<'_>,
+    log: PathBuf,
+    scenario: &PyScenario,
+    out: PathBuf,
+    method: Option<&str>,
+    seed: Option<u64>,
+    force: bool,
+    calib: Option<PathBuf>,
+    topic: Option<String>,
+    camera_topic: Option<String>,
+) -> PyResult<String> {
+    let mut setup = scenario.prepare(py)?;
+    let method = match method {
+        Some(m) => parse_method(m, "method")?,
+        None => setup.scenario().precision.method,
+    };
+    let seed = seed.unwrap_or(setup.scenario().seed);
+    let joint_names: Vec<String> = setup.model.joints.iter().map(|j| j.name.clone()).collect();
+    let topics = aift::logs::Topics {
+        joint_states: topic,
+        camera: camera_topic,
+    };
+    let recorded = py
+        .detach(|| aift::logs::RecordedLog::read(&log, &setup.layout, &joint_names, &topics))
+        .map_err(|e| classified(&e, e.is_input_error()))?;
+    let dt = setup.scenario().dt;
+    setup.loaded.scenario.duration = aift::logs::replay::duration_of(&recorded, dt);
+    setup.loaded.scenario.precision.method = method;
+    setup.loaded.scenario.seed = seed;
+    let staged = Staged::begin(&out, OutputKind::Folder, force).map_err(file_err)?;
+    let cal = calibration(py, &setup, &[method], calib.as_deref())?;
+    py.detach(|| run_files::replay_staged(&staged, &setup, method, seed, cal.as_ref(), &recorded))
+        .map_err(report_err)?;
+    staged.commit().map_err(file_err)?;
+    read_summary(&out)
+}
+
+/// A run folder's summary.json text.
+fn read_summary(dir: &Path) -> PyResult<String> {
+    aift::fsio::read_text(
+        &dir.join(run_files::SUMMARY),
+        aift::fsio::MAX_SCENARIO_BYTES,
+    )
+    .map_err(file_err)
+}
+
 /// Every method over seeds `seed .. seed + seeds`; returns table.json's text. `out` writes the
 /// table folder.
 #[pyfunction]
@@ -997,6 +1049,7 @@ fn _aift(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyScenario>()?;
     m.add_class::<PySim>()?;
     m.add_function(wrap_pyfunction!(run, m)?)?;
+    m.add_function(wrap_pyfunction!(replay, m)?)?;
     m.add_function(wrap_pyfunction!(run_table, m)?)?;
     m.add_function(wrap_pyfunction!(run_campaign, m)?)?;
     m.add_function(wrap_pyfunction!(report, m)?)?;

@@ -223,6 +223,43 @@ mod tests {
     }
 
     #[test]
+    fn bytes_equal_an_independent_serialiser() {
+        // The same messages serialised by PyPI's mcap-ros2-support and rosbags' serialize_cdr
+        // (identical bytes from both; 2026-12-04).
+        let hex = |b: &[u8]| b.iter().map(|x| format!("{x:02x}")).collect::<String>();
+        let mut w = CdrWriter::new();
+        joint_state(
+            &mut w,
+            1_000_000_002,
+            &["j1".to_string()],
+            &[1.5],
+            &[],
+            &[0.25],
+        );
+        assert_eq!(
+            hex(w.bytes()),
+            "000100000100000002000000010000000000000001000000030000006a31000001000000000000000000f83f0000000001000000000000000000d03f"
+        );
+        float64_multi_array(&mut w, "x", &[1.0, 2.0]);
+        assert_eq!(
+            hex(w.bytes()),
+            "000100000100000002000000780000000200000002000000000000000200000000000000000000000000f03f0000000000000040"
+        );
+        float64(&mut w, 3.25);
+        assert_eq!(hex(w.bytes()), "000100000000000000000a40");
+        log(&mut w, 5_000_000_006, LOG_INFO, "node", "hello");
+        // (Theirs had file "a.rs", function "main", line 42: the same up to the name and msg.)
+        assert!(hex(w.bytes()).starts_with(
+            "00010000050000000600000014000000050000006e6f6465000000000600000068656c6c6f00"
+        ));
+        point_stamped(&mut w, 1_000_000_002, "world", [1.0, 2.0, 3.0]);
+        assert_eq!(
+            hex(w.bytes()),
+            "00010000010000000200000006000000776f726c6400000000000000000000000000f03f00000000000000400000000000000840"
+        );
+    }
+
+    #[test]
     fn schemas_name_their_dependencies() {
         let s = joint_state_type().schema;
         assert!(s.contains(&format!("{SEPARATOR}\nMSG: std_msgs/Header\n")));

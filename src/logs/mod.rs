@@ -8,3 +8,35 @@ pub mod mcap_out;
 pub mod messages;
 
 pub use mcap_out::{McapRecorder, RUN_MCAP, TOPICS};
+pub mod recorded;
+pub mod replay;
+
+pub use recorded::{RecordedLog, Topics};
+pub use replay::{ReplayInfo, replay};
+
+use std::path::PathBuf;
+
+/// What went wrong reading a log.
+#[derive(Debug, thiserror::Error)]
+pub enum LogError {
+    #[error(transparent)]
+    File(#[from] crate::fsio::FsError),
+    /// The log lacks something or holds something it must not: the file and the field (a topic
+    /// and message, a CSV line and column) named.
+    #[error("{path}: {field}: {message}")]
+    Bad {
+        path: PathBuf,
+        field: String,
+        message: String,
+    },
+}
+
+impl LogError {
+    /// Whether the input is at fault (as opposed to the disk).
+    pub fn is_input_error(&self) -> bool {
+        match self {
+            Self::File(e) => e.is_input_error(),
+            Self::Bad { .. } => true,
+        }
+    }
+}

@@ -162,7 +162,8 @@ pub fn resolved_scenario(
 /// Writes every file of a run but the trajectory into `dir` (which must exist); `plots_rows`
 /// holds the (decimated) rows the plots and report.html are drawn from, `trajectory_rows` the
 /// rows of the trajectory file.
-pub fn write_run(
+#[allow(clippy::too_many_arguments)] // one private writer of the run folder's fixed files
+fn write_run(
     dir: &Path,
     setup: &RunSetup,
     method: Option<Method>,
@@ -170,6 +171,7 @@ pub fn write_run(
     plots_rows: &TrajectoryRecorder,
     trajectory_rows: u64,
     calibration: Option<&Calibration>,
+    replay: Option<&crate::logs::ReplayInfo>,
 ) -> Result<(), ReportError> {
     let urdf = setup
         .loaded
@@ -191,7 +193,17 @@ pub fn write_run(
     plots::health(&dir.join(PLOT_HEALTH), plots_rows, fault)?;
     plots::detector(&dir.join(PLOT_DETECTOR), plots_rows, fault)?;
     plots::free_energy(&dir.join(PLOT_FREE_ENERGY), plots_rows, fault)?;
-    let summary_doc = summary_json(setup, result);
+    let mut summary_doc = summary_json(setup, result);
+    if let Some(info) = replay {
+        summary_doc["replay"] = json!({
+            "log": info.source,
+            "read": info.described,
+            "samples": info.samples,
+            "ticks": info.ticks,
+            "empty_ticks": info.empty_ticks,
+            "superseded": info.superseded,
+        });
+    }
     let summary = serde_json::to_string_pretty(&summary_doc).expect("a summary always serialises");
     write_atomic(&dir.join(SUMMARY), summary.as_bytes())?;
     let page = super::html::run_page(&summary_doc, Some(&resolved), plots_rows, trajectory_rows);
@@ -292,8 +304,59 @@ pub fn run_staged_with(
         &plot_rows,
         trajectory_rows,
         calibration,
+        None,
     )?;
     Ok(result)
+}
+
+/// `aift replay`: `method` run over a recorded log ([`crate::logs::replay`]) into the run
+/// folder `staged`: trajectory.csv (the plant's columns NaN), summary.json with a `replay`
+/// section, the plots and report.html. `setup`'s duration should cover the log
+/// ([`crate::logs::replay::duration_of`]).
+pub fn replay_staged(
+    staged: &Staged,
+    setup: &RunSetup,
+    method: Method,
+    seed: u64,
+    calibration: Option<&Calibration>,
+    log: &crate::logs::RecordedLog,
+) -> Result<(RunResult, crate::logs::ReplayInfo), ReportError> {
+    let dir = staged.path().to_path_buf();
+    let path = dir.join(TRAJECTORY);
+    let file = std::fs::File::create(&path).map_err(|source| fsio::FsError::Write {
+        path: path.clone(),
+        source,
+    })?;
+    let every = setup.scenario().record_every;
+    let mut writer = TrajectoryWriter::new(TrajectorySchema::new(&setup.layout), file);
+    let mut plot_rows = TrajectoryRecorder::bounded_with_stride(&setup.layout, PLOT_ROWS, every);
+    let mut observers = Observers::new();
+    observers.push(&mut writer, ObserverMode::Every(every));
+    observers.push(&mut plot_rows, ObserverMode::Always);
+    let (result, info) =
+        crate::logs::replay(setup, method, seed, calibration, log, &mut observers)?;
+    drop(observers);
+    let write_err = |source| fsio::FsError::Write {
+        path: path.clone(),
+        source,
+    };
+    let trajectory_rows = writer.rows();
+    writer
+        .finish()
+        .map_err(write_err)?
+        .sync_all()
+        .map_err(write_err)?;
+    write_run(
+        &dir,
+        setup,
+        Some(method),
+        &result,
+        &plot_rows,
+        trajectory_rows,
+        calibration,
+        Some(&info),
+    )?;
+    Ok((result, info))
 }
 
 /// Executes `run` without touching disk: the result, its summary (as summary.json has it) and

@@ -37,6 +37,10 @@ pub enum Command {
     Campaign(CampaignArgs),
     /// Merge the shards of a campaign into the files of the whole campaign.
     Merge(MergeArgs),
+    /// Run a method over recorded readings and applied torques (a rosbag2 bag or MCAP file with
+    /// sensor_msgs/JointState, or a CSV): health, alarms, isolated channels and belief, as a run
+    /// folder. The controller and the plant are not in the loop.
+    Replay(ReplayArgs),
     /// Compare two methods of a campaign cell by cell: the Wilcoxon signed-rank test over the
     /// seeds (paired by seed) on log10 of their post-fault MSE ratio.
     Compare(CompareArgs),
@@ -106,6 +110,45 @@ pub struct CampaignArgs {
     /// Discard the journal of an interrupted run and start from nothing.
     #[arg(long)]
     pub fresh: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct ReplayArgs {
+    /// The log: a rosbag2 bag folder (MCAP storage), a .mcap file, or a .csv with columns t,
+    /// applied1..N and y_<channel> (a run's trajectory.csv is one).
+    pub log: PathBuf,
+    /// The scenario of the arm that was recorded (its URDF, sensors, dt, method settings; the
+    /// faults it declares are what detections are scored against); default: the embedded one.
+    #[arg(long)]
+    pub scenario: Option<PathBuf>,
+    /// Override a scenario value (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE", allow_hyphen_values = true)]
+    pub set: Vec<String>,
+    /// Method (default: the scenario's).
+    #[arg(long)]
+    pub method: Option<String>,
+    /// Seed of the estimators' model-error draw (default: the scenario's).
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// The sensor_msgs/msg/JointState topic (default: /joint_states, else the only one).
+    #[arg(long)]
+    pub topic: Option<String>,
+    /// The camera's geometry_msgs/msg/PointStamped topic (default: /camera/point if present;
+    /// without one the camera's readings are missing).
+    #[arg(long)]
+    pub camera_topic: Option<String>,
+    /// Output folder (default: runs/replay-<log name>-<method>/).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Replace a non-empty output folder.
+    #[arg(long)]
+    pub force: bool,
+    /// Detector calibration file; default: calibrate on the fly.
+    #[arg(long)]
+    pub calib: Option<PathBuf>,
+    /// Print the summary as JSON on stdout.
+    #[arg(long)]
+    pub json: bool,
 }
 
 #[derive(Debug, Args)]

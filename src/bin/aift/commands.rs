@@ -16,7 +16,7 @@ use aift::scenario::{self, LoadedScenario, Method, RunSetup, calibrate, table};
 
 use crate::args::{
     BenchArgs, CalibrateArgs, CampaignArgs, CheckUrdfArgs, Cli, Command, CompareArgs, GenArmArgs,
-    InitArgs, MergeArgs, RunArgs, ScenarioArgs, SimulateArgs, TableArgs, TrainGpArgs,
+    InitArgs, MergeArgs, ReplayArgs, RunArgs, ScenarioArgs, SimulateArgs, TableArgs, TrainGpArgs,
 };
 
 /// A line for people: on stdout, or on stderr when `--json` keeps stdout for one JSON document.
@@ -105,6 +105,7 @@ pub fn dispatch(cli: Cli) -> Result<(), Failure> {
         Command::Campaign(args) => campaign(args),
         Command::Merge(args) => merge(args),
         Command::Compare(args) => compare(args),
+        Command::Replay(args) => replay(args),
         Command::Report(args) => {
             let (kind, path) = report::html::write_report(&args.dir).map_err(report_failure)?;
             if args.json {
@@ -332,6 +333,70 @@ fn print_campaign_json(dir: &Path, shard: Shard, records: &CampaignRecords) -> R
             "records": dir.join(report::campaign_files::RECORDS),
         });
         outln!("{doc}");
+    }
+    Ok(())
+}
+
+/// `aift replay LOG --scenario S`: a method over a recorded log, into a run folder.
+fn replay(args: ReplayArgs) -> Result<(), Failure> {
+    let mut setup = prepare(&ScenarioArgs {
+        scenario: args.scenario.clone(),
+        set: args.set.clone(),
+    })?;
+    let method = match &args.method {
+        Some(m) => parse_method(m)?,
+        None => setup.scenario().precision.method,
+    };
+    let seed = args.seed.unwrap_or(setup.scenario().seed);
+    let joint_names: Vec<String> = setup.model.joints.iter().map(|j| j.name.clone()).collect();
+    let log = aift::logs::RecordedLog::read(
+        &args.log,
+        &setup.layout,
+        &joint_names,
+        &aift::logs::Topics {
+            joint_states: args.topic.clone(),
+            camera: args.camera_topic.clone(),
+        },
+    )
+    .map_err(|e| {
+        if e.is_input_error() {
+            bad_input(e)
+        } else {
+            internal(e)
+        }
+    })?;
+    let dt = setup.scenario().dt;
+    setup.loaded.scenario.duration = aift::logs::replay::duration_of(&log, dt);
+    setup.loaded.scenario.precision.method = method;
+    setup.loaded.scenario.seed = seed;
+    let dir = args.out.clone().unwrap_or_else(|| {
+        let stem = args
+            .log
+            .file_stem()
+            .map_or("log".into(), |s| s.to_string_lossy().into_owned());
+        PathBuf::from("runs").join(format!("replay-{stem}-{method}"))
+    });
+    let staged = stage(&dir, OutputKind::Folder, args.force)?;
+    let calibration = calibration_for(&setup, &[method], args.calib.as_ref())?;
+    let (result, info) =
+        run_files::replay_staged(&staged, &setup, method, seed, calibration.as_deref(), &log)
+            .map_err(report_failure)?;
+    staged.commit().map_err(file_failure)?;
+    say!(
+        args.json,
+        "replayed {} ({}): {} samples over {} ticks of {} s ({} ticks without a sample, {} values superseded) | method {method}",
+        info.source,
+        info.described,
+        info.samples,
+        info.ticks,
+        dt,
+        info.empty_ticks,
+        info.superseded
+    );
+    print_run_result(args.json, &setup, &result);
+    say!(args.json, "wrote {}/", dir.display());
+    if args.json {
+        print_json_file(&dir.join(run_files::SUMMARY))?;
     }
     Ok(())
 }
