@@ -150,7 +150,7 @@ def _scenario(scenario) -> Scenario:
     raise TypeError(f"a Scenario, a path or None, not {type(scenario).__name__}")
 
 
-def run(scenario=None, method: Optional[str] = None, seed: Optional[int] = None, *,
+def run(scenario=None, method=None, seed: Optional[int] = None, *,
         out=None, force: bool = False, calib=None, trajectory: bool = True,
         mcap: bool = False) -> RunResult:
     """Runs one (method, seed) of a scenario (a :class:`Scenario`, a path, or None for the
@@ -159,10 +159,21 @@ def run(scenario=None, method: Optional[str] = None, seed: Optional[int] = None,
     scenario's file, or healthy runs cached in ``$AIFT_CACHE_DIR`` / ``~/.cache/aift``).
     ``trajectory=False`` keeps nothing of the trajectory in memory (``.trajectory`` is None; with
     ``out`` the file has it): for runs longer than the in-memory bound of 2**27 values.
+    ``method`` is a name, or a method written in Python (an object, or a class to instantiate,
+    with ``step(readings, applied, dt) -> (mu, mu_p, precisions)`` or ``update(readings,
+    residuals, mu, mu_p, dt) -> precisions``; docs/python.md, "Bring your own method").
     ``mcap=True`` (with ``out``) also writes ``run.mcap``, the run as ROS 2 messages (the CLI's
     ``--mcap``; docs/logs.md)."""
-    summary, names, data = _aift.run(_scenario(scenario), method, seed, _path(out), force,
-                                     _path(calib), trajectory, mcap)
+    if method is not None and not isinstance(method, str):
+        # A method written in Python (a class is instantiated for the run): docs/python.md,
+        # "Bring your own method".
+        if isinstance(method, type):
+            method = method()
+        summary, names, data = _aift.run_method(_scenario(scenario), method, seed, _path(out),
+                                                force, trajectory, mcap)
+    else:
+        summary, names, data = _aift.run(_scenario(scenario), method, seed, _path(out), force,
+                                         _path(calib), trajectory, mcap)
     return RunResult(json.loads(summary), Trajectory(names, data) if trajectory else None, _path(out))
 
 

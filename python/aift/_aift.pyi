@@ -1,6 +1,6 @@
 """Type stubs of the native module (python/src/lib.rs); the documented API is aift/__init__.py."""
 
-from typing import List, Optional, Tuple
+from typing import Any, List, Optional, Tuple
 
 __version__: str
 
@@ -53,6 +53,8 @@ class Sim:
 
 def run(scenario: Scenario, method: Optional[str] = ..., seed: Optional[int] = ..., out: Optional[str] = ...,
         force: bool = ..., calib: Optional[str] = ..., trajectory: bool = ..., mcap: bool = ...) -> Tuple[str, List[str], bytes]: ...
+def run_method(scenario: Scenario, method: Any, seed: Optional[int] = ..., out: Optional[str] = ...,
+               force: bool = ..., trajectory: bool = ..., mcap: bool = ...) -> Tuple[str, List[str], bytes]: ...
 def replay(log: str, scenario: Scenario, out: str, method: Optional[str] = ..., seed: Optional[int] = ...,
            force: bool = ..., calib: Optional[str] = ..., topic: Optional[str] = ...,
            camera_topic: Optional[str] = ...) -> str: ...

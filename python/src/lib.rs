@@ -6,6 +6,8 @@
 //! `aift.BadInput` (what the CLI exits 2 for) or `aift.InternalError` (exit 1), with the message
 //! the CLI prints after `error: `.
 
+mod custom;
+
 use std::cell::Cell;
 use std::path::{Path, PathBuf};
 
@@ -460,6 +462,134 @@ fn run<'py>(
     })?;
     if interrupt.interrupted.get() {
         // The staged folder is dropped: nothing appears.
+        return Err(PyKeyboardInterrupt::new_err("aift.run interrupted"));
+    }
+    if let Some(staged) = staged {
+        staged.commit().map_err(file_err)?;
+    }
+    let summary = serde_json::to_string(&run_files::summary_json(&setup, &result))
+        .expect("a summary serialises");
+    let names = columns
+        .as_ref()
+        .map(|c| c.names().to_vec())
+        .unwrap_or_default();
+    let bytes = columns_bytes(py, columns.as_ref())?;
+    Ok((summary, names, bytes))
+}
+
+/// A method written in Python (`custom.rs`) run on a scenario, as [`run`] runs a built-in one:
+/// `method` is an object with `step(readings, applied, dt)` (an estimator) or `update(readings,
+/// residuals, mu, mu_p, dt)` (a precision method driving the u-AIC). Same outputs as `run`.
+#[pyfunction]
+#[pyo3(signature = (scenario, method, seed = None, out = None, force = false, trajectory = true, mcap = false))]
+#[allow(clippy::too_many_arguments)]
+fn run_method<'py>(
+    py: Python<'py>,
+    scenario: &PyScenario,
+    method: Bound<'py, PyAny>,
+    seed: Option<u64>,
+    out: Option<PathBuf>,
+    force: bool,
+    trajectory: bool,
+    mcap: bool,
+) -> PyResult<RunOutput<'py>> {
+    if mcap && out.is_none() {
+        return Err(bad(
+            "mcap=True writes run.mcap into the run folder: pass out=",
+        ));
+    }
+    let setup = scenario.prepare(py)?;
+    let seed = seed.unwrap_or(setup.scenario().seed);
+    let name = custom::method_name(&method)?;
+    let estimator_kind = method.hasattr("step")?;
+    if !estimator_kind && !method.hasattr("update")? {
+        return Err(bad(format!(
+            "method {name:?}: has neither step(readings, applied, dt) (an estimator) nor \
+             update(readings, residuals, mu, mu_p, dt) (a precision method)"
+        )));
+    }
+    let sc = setup.scenario();
+    let nominal = setup.nominal_precisions();
+    custom::reset(&method, &setup.layout, sc.dt, &nominal, seed)?;
+    let failure: custom::Failure = Default::default();
+    let parts: aift::scenario::method::MethodParts = if estimator_kind {
+        (
+            Box::new(custom::PyEstimator::new(
+                method.clone().unbind(),
+                name.clone(),
+                &setup.layout,
+                sc.dt,
+                &nominal,
+                failure.clone(),
+            )),
+            Box::new(custom::Reported::new(&nominal)),
+        )
+    } else {
+        let (uaic, _) = aift::scenario::method::build(
+            Method::NoFt,
+            &aift::scenario::method::MethodContext {
+                setup: &setup,
+                model: setup.estimator_model(seed),
+                layout: &setup.layout,
+                nominal: &nominal,
+                calibration: None,
+            },
+        )
+        .map_err(|e| scenario_err(e, &[]))?;
+        (
+            uaic,
+            Box::new(custom::PyPrecision::new(
+                method.clone().unbind(),
+                name.clone(),
+                &nominal,
+                failure.clone(),
+            )),
+        )
+    };
+    let mut columns = if trajectory {
+        Some(
+            TrajectoryColumns::new(&setup.layout, sc.ticks(), sc.record_every).map_err(|m| {
+                bad(format!(
+                    "{}: `record_every`: {m} (or pass trajectory=False)",
+                    setup.loaded.path.display()
+                ))
+            })?,
+        )
+    } else {
+        None
+    };
+    let staged = match &out {
+        Some(dir) => Some(Staged::begin(dir, OutputKind::Folder, force).map_err(file_err)?),
+        None => None,
+    };
+    let mut interrupt = Interrupt {
+        interrupted: Cell::new(false),
+    };
+    let mut guard = custom::MethodGuard {
+        failure: failure.clone(),
+    };
+    let every = sc.record_every;
+    let result = py.detach(|| {
+        let mut run = Run::with_parts(&setup, &name, parts)
+            .seed(seed)
+            .observe(&mut interrupt, ObserverMode::Every(INTERRUPT_TICKS))
+            .observe(&mut guard, ObserverMode::Always);
+        if let Some(c) = columns.as_mut() {
+            run = run.observe(c, ObserverMode::Every(every));
+        }
+        match &staged {
+            Some(staged) => {
+                run_files::run_staged_with(staged, run, &run_files::RunFileOptions { mcap })
+                    .map_err(report_err)
+            }
+            None => run.execute().map_err(|e| scenario_err(e, &[])),
+        }
+    })?;
+    if let Some((tick, err)) = failure.lock().expect("not poisoned").take() {
+        // The staged folder is dropped: nothing appears.
+        return Err(custom::raise(py, &name, tick, err));
+    }
+    if interrupt.interrupted.get() {
         return Err(PyKeyboardInterrupt::new_err("aift.run interrupted"));
     }
     if let Some(staged) = staged {
@@ -1050,6 +1180,7 @@ fn _aift(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PySim>()?;
     m.add_function(wrap_pyfunction!(run, m)?)?;
     m.add_function(wrap_pyfunction!(replay, m)?)?;
+    m.add_function(wrap_pyfunction!(run_method, m)?)?;
     m.add_function(wrap_pyfunction!(run_table, m)?)?;
     m.add_function(wrap_pyfunction!(run_campaign, m)?)?;
     m.add_function(wrap_pyfunction!(report, m)?)?;
