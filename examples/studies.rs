@@ -48,11 +48,7 @@ fn rows(label: &str, setup: &RunSetup, methods: &[Method], seeds: &[u64]) {
     let table = run_table(setup, &methods, seeds, calibration.as_ref(), &|| {}).expect("runs");
     let layout = setup.layout;
     for row in &table.rows {
-        let runs: Vec<_> = table
-            .runs
-            .iter()
-            .filter(|r| r.method == row.method.name())
-            .collect();
+        let runs: Vec<_> = table.runs.iter().filter(|r| r.method == row.name).collect();
         // Mean final health per channel, to see who got blamed.
         let health: Vec<String> = (0..layout.len())
             .map(|c| {
@@ -67,7 +63,7 @@ fn rows(label: &str, setup: &RunSetup, methods: &[Method], seeds: &[u64]) {
             / runs.len() as f64;
         println!(
             "| {label} | {} | {} | {} | {} | {:.4} | {}/{} | {} |",
-            row.method.name(),
+            row.name,
             sci(row.mse_faulty_mean),
             sci(row.mse_healthy_mean),
             sci(Some(all)),

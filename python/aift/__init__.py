@@ -202,12 +202,21 @@ def _methods(methods):
     return list(methods)
 
 
-def table(scenario=None, methods: Optional[Sequence[str]] = None, seeds: int = 20, *,
+def table(scenario=None, methods=None, seeds: int = 20, *,
           out=None, force: bool = False, calib=None) -> Rows:
     """Every method (or ``methods``) over ``seeds`` seeds from the scenario's: table.json's
-    document and its rows (one per method)."""
-    doc = _aift.run_table(_scenario(scenario), _methods(methods), seeds,
-                          _path(out), force, _path(calib))
+    document and its rows (one per method). ``methods`` may hold methods written in Python
+    beside the names, as classes (or functions returning a new method object): every run gets
+    its own instance (docs/python.md, "Bring your own method")."""
+    names, custom = None, []
+    if methods is not None:
+        listed = [methods] if isinstance(methods, str) else list(methods)
+        custom = [m for m in listed if not isinstance(m, str)]
+        named = [m for m in listed if isinstance(m, str)]
+        # Names only, or names beside Python methods; Python methods alone: no built-in one.
+        names = _methods(",".join(named)) if named else ([] if not custom else None)
+    doc = _aift.run_table(_scenario(scenario), names, seeds,
+                          _path(out), force, _path(calib), custom)
     return Rows(json.loads(doc), "rows")
 
 

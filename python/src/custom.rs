@@ -21,7 +21,7 @@ use aift::sensors::{ChannelLayout, Readings};
 /// The first failure of a Python method: its tick and the error to raise.
 pub type Failure = Arc<Mutex<Option<(u64, PyErr)>>>;
 
-fn fail(slot: &Failure, tick: u64, err: PyErr) {
+pub fn fail(slot: &Failure, tick: u64, err: PyErr) {
     let mut s = slot.lock().expect("not poisoned");
     if s.is_none() {
         *s = Some((tick, err));
@@ -95,6 +95,59 @@ pub fn reset(
     kwargs.set_item("nominal", nominal.to_vec())?;
     kwargs.set_item("seed", seed)?;
     obj.call_method("reset", (), Some(&kwargs)).map(|_| ())
+}
+
+/// The estimator and precision method of a method written in Python (`obj`, already reset):
+/// an estimator (`step`) with [`Reported`], or the built-in u-AIC with a precision method
+/// (`update`).
+pub fn build_parts(
+    obj: &Bound<'_, PyAny>,
+    name: &str,
+    setup: &aift::scenario::RunSetup,
+    seed: u64,
+    failure: &Failure,
+) -> PyResult<aift::scenario::method::MethodParts> {
+    let nominal = setup.nominal_precisions();
+    let dt = setup.scenario().dt;
+    if obj.hasattr("step")? {
+        return Ok((
+            Box::new(PyEstimator::new(
+                obj.clone().unbind(),
+                name.to_string(),
+                &setup.layout,
+                dt,
+                &nominal,
+                failure.clone(),
+            )),
+            Box::new(Reported::new(&nominal)),
+        ));
+    }
+    if !obj.hasattr("update")? {
+        return Err(crate::bad(format!(
+            "method {name:?}: has neither step(readings, applied, dt) (an estimator) nor \
+             update(readings, residuals, mu, mu_p, dt) (a precision method)"
+        )));
+    }
+    let (uaic, _) = aift::scenario::method::build(
+        aift::scenario::Method::NoFt,
+        &aift::scenario::method::MethodContext {
+            setup,
+            model: setup.estimator_model(seed),
+            layout: &setup.layout,
+            nominal: &nominal,
+            calibration: None,
+        },
+    )
+    .map_err(|e| crate::bad(e.to_string()))?;
+    Ok((
+        uaic,
+        Box::new(PyPrecision::new(
+            obj.clone().unbind(),
+            name.to_string(),
+            &nominal,
+            failure.clone(),
+        )),
+    ))
 }
 
 /// An estimator written in Python.

@@ -10,6 +10,7 @@ mod custom;
 
 use std::cell::Cell;
 use std::path::{Path, PathBuf};
+use std::sync::Mutex;
 
 use pyo3::exceptions::{PyException, PyKeyboardInterrupt};
 use pyo3::prelude::*;
@@ -23,7 +24,7 @@ use aift::scenario::campaign::{self, Campaign, CampaignConfig, Shard};
 use aift::scenario::metrics::DivergenceGuard;
 use aift::scenario::{
     LoadedScenario, Method, Observer, ObserverMode, Run, RunSetup, ScenarioError, Simulation,
-    StopReason, TickRecord, TrajectoryColumns, table,
+    StopReason, TickRecord, TrajectoryColumns, method::MethodParts, table,
 };
 use aift::sensors::Readings;
 
@@ -501,51 +502,16 @@ fn run_method<'py>(
     let setup = scenario.prepare(py)?;
     let seed = seed.unwrap_or(setup.scenario().seed);
     let name = custom::method_name(&method)?;
-    let estimator_kind = method.hasattr("step")?;
-    if !estimator_kind && !method.hasattr("update")? {
-        return Err(bad(format!(
-            "method {name:?}: has neither step(readings, applied, dt) (an estimator) nor \
-             update(readings, residuals, mu, mu_p, dt) (a precision method)"
-        )));
-    }
     let sc = setup.scenario();
-    let nominal = setup.nominal_precisions();
-    custom::reset(&method, &setup.layout, sc.dt, &nominal, seed)?;
+    custom::reset(
+        &method,
+        &setup.layout,
+        sc.dt,
+        &setup.nominal_precisions(),
+        seed,
+    )?;
     let failure: custom::Failure = Default::default();
-    let parts: aift::scenario::method::MethodParts = if estimator_kind {
-        (
-            Box::new(custom::PyEstimator::new(
-                method.clone().unbind(),
-                name.clone(),
-                &setup.layout,
-                sc.dt,
-                &nominal,
-                failure.clone(),
-            )),
-            Box::new(custom::Reported::new(&nominal)),
-        )
-    } else {
-        let (uaic, _) = aift::scenario::method::build(
-            Method::NoFt,
-            &aift::scenario::method::MethodContext {
-                setup: &setup,
-                model: setup.estimator_model(seed),
-                layout: &setup.layout,
-                nominal: &nominal,
-                calibration: None,
-            },
-        )
-        .map_err(|e| scenario_err(e, &[]))?;
-        (
-            uaic,
-            Box::new(custom::PyPrecision::new(
-                method.clone().unbind(),
-                name.clone(),
-                &nominal,
-                failure.clone(),
-            )),
-        )
-    };
+    let parts = custom::build_parts(&method, &name, &setup, seed, &failure)?;
     let mut columns = if trajectory {
         Some(
             TrajectoryColumns::new(&setup.layout, sc.ticks(), sc.record_every).map_err(|m| {
@@ -657,10 +623,14 @@ fn read_summary(dir: &Path) -> PyResult<String> {
     .map_err(file_err)
 }
 
+/// Builds a method's parts for a seed (a table's method written in Python).
+type PartsBuilder<'a> = dyn Fn(u64) -> Result<MethodParts, ScenarioError> + Sync + 'a;
+
 /// Every method over seeds `seed .. seed + seeds`; returns table.json's text. `out` writes the
 /// table folder.
 #[pyfunction]
-#[pyo3(signature = (scenario, methods = None, seeds = 20, out = None, force = false, calib = None))]
+#[pyo3(signature = (scenario, methods = None, seeds = 20, out = None, force = false, calib = None, custom = Vec::new()))]
+#[allow(clippy::too_many_arguments)]
 fn run_table(
     py: Python<'_>,
     scenario: &PyScenario,
@@ -669,10 +639,27 @@ fn run_table(
     out: Option<PathBuf>,
     force: bool,
     calib: Option<PathBuf>,
+    custom: Vec<Bound<'_, PyAny>>,
 ) -> PyResult<String> {
     const MAX_SEEDS: usize = 100_000;
     let setup = scenario.prepare(py)?;
-    let methods = parse_methods(methods)?;
+    let methods = match (&methods, custom.is_empty()) {
+        (None, false) => Vec::new(),
+        _ => parse_methods(methods)?,
+    };
+    // Methods written in Python: factories (classes), one instance per run.
+    let mut factories = Vec::with_capacity(custom.len());
+    for f in &custom {
+        if !f.is_callable() {
+            return Err(bad(format!(
+                "a method written in Python in a table must be a class (or a function returning \
+                 a new method object): each run gets its own instance; got {}",
+                f.repr()?
+            )));
+        }
+        let name = custom::method_name(f)?;
+        factories.push((name, f.clone().unbind()));
+    }
     if seeds == 0 || seeds > MAX_SEEDS {
         return Err(bad(format!("seeds must be in 1..={MAX_SEEDS}")));
     }
@@ -686,10 +673,75 @@ fn run_table(
         None => None,
     };
     let cal = calibration(py, &setup, &methods, calib.as_deref())?;
+    // Each run's failure slot, by (method, seed): the first failure is raised after the table.
+    let failures: Mutex<Vec<(String, u64, custom::Failure)>> = Mutex::new(Vec::new());
+    let builders: Vec<Box<PartsBuilder<'_>>> = factories
+        .iter()
+        .map(|(name, factory)| {
+            let setup = &setup;
+            let failures = &failures;
+            Box::new(move |seed: u64| {
+                let failure: custom::Failure = Default::default();
+                failures
+                    .lock()
+                    .expect("not poisoned")
+                    .push((name.clone(), seed, failure.clone()));
+                Python::attach(|py| {
+                    let obj = factory.bind(py).call0()?;
+                    custom::reset(
+                        &obj,
+                        &setup.layout,
+                        setup.scenario().dt,
+                        &setup.nominal_precisions(),
+                        seed,
+                    )?;
+                    custom::build_parts(&obj, name, setup, seed, &failure)
+                })
+                .map_err(|e| {
+                    let message = Python::attach(|py| e.value(py).to_string());
+                    custom::fail(&failure, 0, e);
+                    ScenarioError::Invalid {
+                        path: setup.loaded.path.clone(),
+                        field: "methods".into(),
+                        message: format!("method {name:?}: {message}"),
+                    }
+                })
+            }) as Box<PartsBuilder<'_>>
+        })
+        .collect();
+    let external: Vec<table::ExternalMethod<'_>> = factories
+        .iter()
+        .zip(&builders)
+        .map(|((name, _), build)| table::ExternalMethod {
+            name: name.clone(),
+            build: build.as_ref(),
+        })
+        .collect();
     let result = interruptible(py, || {
-        table::run_table(&setup, &methods, &seed_list, cal.as_ref(), &|| {})
-    })?
-    .map_err(|e| scenario_err(e, &[]))?;
+        table::run_table_with(
+            &setup,
+            &methods,
+            &external,
+            &seed_list,
+            cal.as_ref(),
+            &|| {},
+        )
+    })?;
+    drop(external);
+    drop(builders);
+    let mut failures = failures.into_inner().expect("not poisoned");
+    failures.sort_by(|a, b| (&a.0, a.1).cmp(&(&b.0, b.1)));
+    for (name, seed, slot) in failures {
+        if let Some((tick, err)) = slot.lock().expect("not poisoned").take() {
+            return Err(custom::raise(
+                py,
+                &format!("{name}, seed {seed}"),
+                tick,
+                err,
+            ));
+        }
+    }
+    let result = result.map_err(|e| scenario_err(e, &[]))?;
     if let Some(staged) = staged {
         table_files::write_table(staged.path(), &setup, &result).map_err(report_err)?;
         staged.commit().map_err(file_err)?;

@@ -112,3 +112,25 @@ def test_bad_values_from_a_method_name_the_field_and_tick(method, field):
 def test_an_object_of_neither_kind_is_refused():
     with pytest.raises(aift.BadInput, match="neither step"):
         aift.run(short(), NeitherKind)
+
+
+def test_a_table_takes_python_methods_beside_names():
+    sc = short()
+    rows = aift.table(sc, ["no-ft", NominalPrecisions, "oracle"], seeds=2)
+    by = {r["method"]: r for r in rows.rows}
+    assert set(by) == {"no-ft", "oracle", "nominal"}
+    # The same parts as no-FT over the same seeds: the same numbers.
+    for key in ["mse_faulty_mean", "mse_healthy_mean", "max_final_error_mean", "ratio_to_oracle"]:
+        assert by["nominal"][key] == by["no-ft"][key], key
+    # Twice: the same table.
+    again = {r["method"]: r for r in aift.table(sc, [NominalPrecisions], seeds=2).rows}
+    assert again["nominal"]["mse_faulty_mean"] == by["nominal"]["mse_faulty_mean"]
+
+
+def test_a_table_needs_classes_and_raises_a_failing_run():
+    with pytest.raises(aift.BadInput, match="must be a class"):
+        aift.table(short(), [NominalPrecisions()], seeds=1)
+    with pytest.raises(ZeroDivisionError) as info:
+        aift.table(short(), [Raises], seeds=2)
+    notes = " ".join(getattr(info.value, "__notes__", []))
+    assert "seed" in notes and "at tick 100" in notes, notes

@@ -39,7 +39,7 @@ pub fn table_csv(table: &Table) -> String {
     for r in &table.rows {
         out += &format!(
             "{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
-            r.method.name(),
+            r.name,
             r.seeds,
             opt(r.mse_faulty_mean),
             opt(r.mse_faulty_std),
@@ -104,7 +104,7 @@ pub fn table_json(setup: &RunSetup, table: &Table) -> serde_json::Value {
         "conditions": setup.conditions().json(),
         "seeds": table.seeds,
         "rows": table.rows.iter().map(|r| json!({
-            "method": r.method.name(),
+            "method": r.name,
             "seeds": r.seeds,
             "mse_faulty_mean": r.mse_faulty_mean,
             "mse_faulty_std": r.mse_faulty_std,
@@ -117,7 +117,7 @@ pub fn table_json(setup: &RunSetup, table: &Table) -> serde_json::Value {
             "isolation_correct": r.isolation_correct,
             "false_alarms": r.false_alarms,
             "diverged": r.diverged,
-            "paper_table1": r.method.paper_table1().filter(|_| is_paper_experiment(setup)).map(|(f, h)| json!({"faulty": f, "healthy": h})),
+            "paper_table1": r.method.and_then(|m| m.paper_table1()).filter(|_| is_paper_experiment(setup)).map(|(f, h)| json!({"faulty": f, "healthy": h})),
         })).collect::<Vec<_>>(),
     })
 }
@@ -157,10 +157,13 @@ pub fn table_markdown(setup: &RunSetup, table: &Table) -> String {
     out += "| method | faulty MSE (ours) | paper | healthy MSE (ours) | paper | x oracle | max final error (rad) | detection delay (s) | isolation correct | false alarms | diverged |\n";
     out += "|---|---|---|---|---|---|---|---|---|---|---|\n";
     for r in &table.rows {
-        let paper = r.method.paper_table1().filter(|_| paper_columns);
+        let paper = r
+            .method
+            .and_then(|m| m.paper_table1())
+            .filter(|_| paper_columns);
         out += &format!(
             "| {} | {} ± {} | {} | {} ± {} | {} | {} | {:.4} | {} | {} | {} | {} |\n",
-            r.method.name(),
+            r.name,
             sci(r.mse_faulty_mean),
             sci(r.mse_faulty_std),
             sci(paper.map(|p| p.0)),
@@ -184,7 +187,7 @@ pub fn table_markdown(setup: &RunSetup, table: &Table) -> String {
     out += "\nDetection delay: the detector's alarm for pl-detect and deterministic; for the other methods \
             the first time a channel's health fell below 0.1 and stayed there 20 ms. The oracle zeroes the faulty channel's \
             precision at the fault time; it is the reference, not a usable method.\n";
-    if table.rows.iter().any(|r| r.method == Method::Oracle) {
+    if table.rows.iter().any(|r| r.method == Some(Method::Oracle)) {
         out += "`x oracle`: the method's faulty-joint MSE over the oracle's (all-joint MSE when no joint has a faulty sensor).\n";
     }
     out

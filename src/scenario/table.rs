@@ -3,6 +3,7 @@
 
 use rayon::prelude::*;
 
+use super::method::MethodParts;
 use super::runner::Run;
 use super::{Method, RunResult, RunSetup, ScenarioError};
 use crate::precision::Calibration;
@@ -10,7 +11,10 @@ use crate::precision::Calibration;
 /// One method's row of the table.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TableRow {
-    pub method: Method,
+    /// The method's name (a built-in method's, or the caller's for an [`ExternalMethod`]).
+    pub name: String,
+    /// The built-in method (None for an [`ExternalMethod`]).
+    pub method: Option<Method>,
     pub seeds: usize,
     pub mse_faulty_mean: Option<f64>,
     pub mse_faulty_std: Option<f64>,
@@ -51,6 +55,14 @@ fn mean_std(values: &[f64]) -> (f64, f64) {
     (mean, var.sqrt())
 }
 
+/// A method of the caller's in a table (a method written in Python, say): its name and a
+/// builder of its estimator and precision method for a seed, called once per run from any
+/// worker thread.
+pub struct ExternalMethod<'a> {
+    pub name: String,
+    pub build: &'a (dyn Fn(u64) -> Result<MethodParts, ScenarioError> + Sync),
+}
+
 /// Runs every method in `methods` for every seed in `seeds`; `progress` is called after each run.
 ///
 /// ```no_run
@@ -71,20 +83,51 @@ pub fn run_table(
     calibration: Option<&Calibration>,
     progress: &(dyn Fn() + Sync),
 ) -> Result<Table, ScenarioError> {
+    run_table_with(setup, methods, &[], seeds, calibration, progress)
+}
+
+/// [`run_table`] with methods of the caller's beside the built-in ones (after them, in order).
+pub fn run_table_with(
+    setup: &RunSetup,
+    methods: &[Method],
+    external: &[ExternalMethod<'_>],
+    seeds: &[u64],
+    calibration: Option<&Calibration>,
+    progress: &(dyn Fn() + Sync),
+) -> Result<Table, ScenarioError> {
     for &m in methods {
         setup.check_method(m)?;
     }
-    let jobs: Vec<(Method, u64)> = methods
-        .iter()
-        .flat_map(|&m| seeds.iter().map(move |&s| (m, s)))
+    let mut names: Vec<String> = methods.iter().map(|m| m.name().to_string()).collect();
+    for e in external {
+        if names.contains(&e.name) {
+            return Err(ScenarioError::Invalid {
+                path: setup.loaded.path.clone(),
+                field: "methods".into(),
+                message: format!("{:?} is in the table twice (names must differ)", e.name),
+            });
+        }
+        names.push(e.name.clone());
+    }
+    let columns = methods.len() + external.len();
+    let jobs: Vec<(usize, u64)> = (0..columns)
+        .flat_map(|c| seeds.iter().map(move |&s| (c, s)))
         .collect();
     let results: Vec<Result<RunResult, ScenarioError>> = jobs
         .par_iter()
-        .map(|&(method, seed)| {
-            let r = Run::new(setup, method)
-                .seed(seed)
-                .calibration(calibration)
-                .execute();
+        .map(|&(column, seed)| {
+            let r = match methods.get(column) {
+                Some(&method) => Run::new(setup, method)
+                    .seed(seed)
+                    .calibration(calibration)
+                    .execute(),
+                None => {
+                    let e = &external[column - methods.len()];
+                    (e.build)(seed).and_then(|parts| {
+                        Run::with_parts(setup, &e.name, parts).seed(seed).execute()
+                    })
+                }
+            };
             progress();
             r
         })
@@ -95,10 +138,11 @@ pub fn run_table(
         .iter()
         .map(|f| f.start)
         .fold(None, |a: Option<f64>, s| Some(a.map_or(s, |a| a.min(s))));
-    let mut rows: Vec<TableRow> = methods
+    let mut rows: Vec<TableRow> = names
         .iter()
-        .map(|&method| {
-            let mine: Vec<&RunResult> = runs.iter().filter(|r| r.method == method.name()).collect();
+        .enumerate()
+        .map(|(column, name)| {
+            let mine: Vec<&RunResult> = runs.iter().filter(|r| r.method == *name).collect();
             let stat = |f: &dyn Fn(&RunResult) -> Option<f64>| {
                 let v: Vec<f64> = mine.iter().filter_map(|r| f(r)).collect();
                 (!v.is_empty()).then(|| mean_std(&v))
@@ -119,7 +163,8 @@ pub fn run_table(
             });
             let isolated: Vec<bool> = mine.iter().filter_map(|r| r.isolation_correct).collect();
             TableRow {
-                method,
+                name: name.clone(),
+                method: methods.get(column).copied(),
                 seeds: mine.len(),
                 mse_faulty_mean: faulty.map(|s| s.0),
                 mse_faulty_std: faulty.map(|s| s.1),
@@ -141,7 +186,11 @@ pub fn run_table(
             }
         })
         .collect();
-    if let Some(oracle) = rows.iter().find(|r| r.method == Method::Oracle).cloned() {
+    if let Some(oracle) = rows
+        .iter()
+        .find(|r| r.method == Some(Method::Oracle))
+        .cloned()
+    {
         for row in &mut rows {
             row.ratio_to_oracle = match (row.mse_faulty_mean, oracle.mse_faulty_mean) {
                 (Some(m), Some(o)) => Some(m / o),
