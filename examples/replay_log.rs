@@ -44,8 +44,8 @@ fn main() -> anyhow::Result<()> {
         &joints,
         &Topics::default(),
     )?;
-    setup.loaded.scenario.duration = replay::duration_of(&log, setup.scenario().dt);
     let seed = setup.scenario().seed;
+    replay::prepare(&mut setup, &log, method, seed)?;
     let (replayed, info) = replay(&setup, method, seed, None, &log, &mut Observers::new())?;
     println!(
         "{method}: live run detected at {:?} ({:?}); replay of {} ({} samples, {} ticks) at {:?} ({:?})",

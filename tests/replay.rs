@@ -166,6 +166,11 @@ fn bad_logs_are_refused_before_any_output() {
             "line 2, column y_enc1",
         ),
         ("empty.csv", ok_header.into(), "no data row"),
+        (
+            "forever.csv",
+            format!("{ok_header}0,0,0,0,0\n1e300,0,0,0,0\n"),
+            "ticks replayed",
+        ),
         ("log.txt", "t\n".into(), "neither"),
         ("not.mcap", "not an mcap file".into(), "not an MCAP file"),
     ];
@@ -296,4 +301,52 @@ fn bad_mcap_logs_name_the_topic_message_and_joint() {
         );
         assert!(!d.join("out").exists(), "{name}: nothing written");
     }
+}
+
+#[test]
+fn a_split_bag_is_read_in_time_order() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    scenario(d);
+    let good = vec!["joint1".to_string(), "joint2".to_string()];
+    let at = |ms: u64| {
+        (
+            1_700_000_000_000_000_000 + ms * 1_000_000,
+            good.clone(),
+            vec![0.0, 0.0],
+        )
+    };
+    std::fs::create_dir(d.join("bag")).unwrap();
+    // Names that sort against time: part_10 holds the first 5 ms, part_9 the next.
+    joint_state_mcap(
+        &d.join("bag/part_10.mcap"),
+        "/joint_states",
+        &[at(0), at(2), at(4)],
+    );
+    joint_state_mcap(&d.join("bag/part_9.mcap"), "/joint_states", &[at(6), at(8)]);
+    let out = common::aift_ok(
+        &[
+            "replay",
+            "bag",
+            "--scenario",
+            "s.toml",
+            "--method",
+            "no-ft",
+            "--out",
+            "r",
+            "--json",
+        ],
+        d,
+    );
+    let s: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(s["replay"]["samples"], 5, "{s}");
+    assert_eq!(s["replay"]["ticks"], 9, "{s}");
+    assert_eq!(s["replay"]["empty_ticks"], 4, "{s}");
+    // Files whose times overlap are refused.
+    joint_state_mcap(&d.join("bag/part_8.mcap"), "/joint_states", &[at(3)]);
+    let out = common::aift_in(&["replay", "bag", "--scenario", "s.toml", "--out", "x"], d);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("overlap"), "{stderr}");
+    assert!(!d.join("x").exists());
 }

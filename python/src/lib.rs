@@ -601,11 +601,8 @@ fn replay(
     };
     let recorded = py
         .detach(|| aift::logs::RecordedLog::read(&log, &setup.layout, &joint_names, &topics))
+        .and_then(|r| aift::logs::replay::prepare(&mut setup, &r, method, seed).map(|()| r))
         .map_err(|e| classified(&e, e.is_input_error()))?;
-    let dt = setup.scenario().dt;
-    setup.loaded.scenario.duration = aift::logs::replay::duration_of(&recorded, dt);
-    setup.loaded.scenario.precision.method = method;
-    setup.loaded.scenario.seed = seed;
     let staged = Staged::begin(&out, OutputKind::Folder, force).map_err(file_err)?;
     let cal = calibration(py, &setup, &[method], calib.as_deref())?;
     py.detach(|| run_files::replay_staged(&staged, &setup, method, seed, cal.as_ref(), &recorded))

@@ -67,6 +67,7 @@ def test_an_estimator_from_python_is_scored_and_deterministic(tmp_path):
     # The frozen encoder is gated out (its reported precision 0: health 0) after the fault.
     assert a.summary["detected_at"] is not None and a.summary["detected_at"] >= 8.0
     assert a.summary["isolated_channel"] == "enc1"
+    assert a.trajectory["health_enc1"][t >= 9.0].max() == 0.0
 
 
 class Raises:

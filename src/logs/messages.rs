@@ -180,6 +180,20 @@ pub struct JointStateMessage {
     pub effort: Vec<f64>,
 }
 
+/// A header stamp in ns (0 for a negative one).
+fn stamp_ns(sec: i32, nanosec: u32) -> u64 {
+    (sec.max(0) as u64) * 1_000_000_000 + u64::from(nanosec)
+}
+
+/// Decodes a geometry_msgs/msg/PointStamped: its stamp (ns) and point.
+pub fn read_point_stamped(data: &[u8]) -> CdrResult<(u64, [f64; 3])> {
+    let mut r = CdrReader::new(data)?;
+    let sec = r.i32()?;
+    let nanosec = r.u32()?;
+    let _frame_id = r.string()?;
+    Ok((stamp_ns(sec, nanosec), [r.f64()?, r.f64()?, r.f64()?]))
+}
+
 /// Decodes a sensor_msgs/msg/JointState from its CDR bytes.
 pub fn read_joint_state(data: &[u8]) -> CdrResult<JointStateMessage> {
     let mut r = CdrReader::new(data)?;
@@ -187,7 +201,7 @@ pub fn read_joint_state(data: &[u8]) -> CdrResult<JointStateMessage> {
     let nanosec = r.u32()?;
     let _frame_id = r.string()?;
     Ok(JointStateMessage {
-        stamp_ns: (sec.max(0) as u64) * 1_000_000_000 + u64::from(nanosec),
+        stamp_ns: stamp_ns(sec, nanosec),
         name: r.strings()?,
         position: r.f64s()?,
         velocity: r.f64s()?,
@@ -212,6 +226,12 @@ mod tests {
             &[0.25, -1.0],
         );
         let m = read_joint_state(w.bytes()).unwrap();
+        let mut p = CdrWriter::new();
+        point_stamped(&mut p, 3_000_000_004, "image", [1.0, -2.0, 0.0]);
+        assert_eq!(
+            read_point_stamped(p.bytes()).unwrap(),
+            (3_000_000_004, [1.0, -2.0, 0.0])
+        );
         assert_eq!(m.stamp_ns, 1_000_000_002);
         assert_eq!(m.name, names);
         assert_eq!(m.position[0], 1.5);

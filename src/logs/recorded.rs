@@ -94,35 +94,48 @@ impl RecordedLog {
                      sqlite3, is not read: convert it with `ros2 bag convert`)",
                 ));
             }
-            let mut bytes = Vec::new();
+            let mut parts = Vec::with_capacity(files.len());
             let mut total = 0u64;
-            let mut out: Option<RecordedLog> = None;
+            let mut messages = 0usize;
             for f in &files {
-                let b = crate::fsio::read_bounded(f, MAX_LOG_BYTES - total.min(MAX_LOG_BYTES))?;
+                let b = crate::fsio::read_bounded(f, MAX_LOG_BYTES - total)?;
                 total += b.len() as u64;
-                bytes.push((f.clone(), b));
+                let part = read_mcap(f, &b, layout, joint_names, topics, messages)?;
+                messages += part.messages;
+                parts.push((f.clone(), part));
             }
-            for (f, b) in &bytes {
-                let log = read_mcap(f, b, layout, joint_names, topics)?;
-                match out.as_mut() {
-                    None => out = Some(log),
-                    Some(o) => {
-                        let last = o.samples.last().map_or(f64::NEG_INFINITY, |s| s.t);
-                        if log.samples.first().is_some_and(|s| s.t < last) {
-                            return Err(bad(f, "time", "starts before the previous file ends"));
-                        }
-                        o.samples.extend(log.samples);
-                    }
+            // Files in time order (a split bag's names need not sort as its times do), one
+            // after the other, all on the same clock.
+            parts.sort_by_key(|(_, p)| p.first_ns);
+            for w in parts.windows(2) {
+                let ((fa, a), (fb, b)) = (&w[0], &w[1]);
+                if b.first_ns < a.last_ns {
+                    return Err(bad(
+                        fb,
+                        "time",
+                        format!("its joint states overlap those of {} in time", fa.display()),
+                    ));
+                }
+                if a.stamped != b.stamped {
+                    return Err(bad(
+                        fb,
+                        "time",
+                        format!(
+                            "header stamps in one file and not in {}: one clock is needed",
+                            fa.display()
+                        ),
+                    ));
                 }
             }
-            let mut log = out.expect("at least one file");
-            log.source = path.to_path_buf();
-            return Ok(log);
+            let described = parts[0].1.described.clone();
+            let samples = parts.into_iter().flat_map(|(_, p)| p.samples).collect();
+            return Ok(finish(path, described, samples));
         }
         match path.extension().and_then(|e| e.to_str()) {
             Some("mcap") => {
                 let bytes = crate::fsio::read_bounded(path, MAX_LOG_BYTES)?;
-                read_mcap(path, &bytes, layout, joint_names, topics)
+                let part = read_mcap(path, &bytes, layout, joint_names, topics, 0)?;
+                Ok(finish(path, part.described, part.samples))
             }
             Some("csv") => {
                 let text = crate::fsio::read_text(path, MAX_LOG_BYTES)?;
@@ -137,14 +150,48 @@ impl RecordedLog {
     }
 }
 
-/// The JointState messages of an MCAP file (and the camera's points), in file order.
+/// One MCAP file's samples, at their absolute times (ns), in time order.
+struct McapPart {
+    samples: Vec<(u64, Sample)>,
+    /// The first and last joint state's time.
+    first_ns: u64,
+    last_ns: u64,
+    stamped: bool,
+    messages: usize,
+    described: String,
+}
+
+/// A log of samples at absolute times: times from the first joint state (samples before it, a
+/// camera's, dropped).
+fn finish(path: &Path, described: String, samples: Vec<(u64, Sample)>) -> RecordedLog {
+    let t0 = samples
+        .iter()
+        .find(|(_, s)| s.effort.is_some())
+        .map_or(0, |(ns, _)| *ns);
+    RecordedLog {
+        source: path.to_path_buf(),
+        described,
+        samples: samples
+            .into_iter()
+            .filter(|(ns, _)| *ns >= t0)
+            .map(|(ns, mut s)| {
+                s.t = (ns - t0) as f64 * 1e-9;
+                s
+            })
+            .collect(),
+    }
+}
+
+/// The JointState messages of an MCAP file (and the camera's points); `counted` messages were
+/// read from earlier files of the same bag.
 fn read_mcap(
     path: &Path,
     bytes: &[u8],
     layout: &ChannelLayout,
     joint_names: &[String],
     topics: &Topics,
-) -> Result<RecordedLog, LogError> {
+    counted: usize,
+) -> Result<McapPart, LogError> {
     if !bytes.starts_with(b"\x89MCAP0\r\n") {
         return Err(bad(path, "mcap", "not an MCAP file (no MCAP magic)"));
     }
@@ -157,7 +204,7 @@ fn read_mcap(
     for m in stream {
         let m = m.map_err(|e| bad(path, "mcap", format!("a corrupt record: {e}")))?;
         count += 1;
-        if count > MAX_LOG_MESSAGES {
+        if counted + count > MAX_LOG_MESSAGES {
             return Err(bad(
                 path,
                 "mcap",
@@ -344,15 +391,8 @@ fn read_mcap(
         let range = layout.group_range(SensorGroup::Camera);
         for (k, (log_time, data)) in joint_msgs[cam].iter().enumerate() {
             let at = format!("{cam} message {k}");
-            let mut r = super::cdr::CdrReader::new(data).map_err(|e| bad(path, &at, e))?;
-            let sec = r.i32().map_err(|e| bad(path, &at, e))?;
-            let nanosec = r.u32().map_err(|e| bad(path, &at, e))?;
-            let _frame = r.string().map_err(|e| bad(path, &at, e))?;
-            let mut p = [0.0; 3];
-            for x in &mut p {
-                *x = r.f64().map_err(|e| bad(path, &at, e))?;
-            }
-            let stamp = (sec.max(0) as u64) * 1_000_000_000 + u64::from(nanosec);
+            let (stamp, p) =
+                super::messages::read_point_stamped(data).map_err(|e| bad(path, &at, e))?;
             let ns = time(*log_time, stamp);
             let mut readings = vec![None; layout.len()];
             for (k, c) in range.clone().enumerate() {
@@ -360,9 +400,6 @@ fn read_mcap(
                     return Err(bad(path, &at, format!("point {p:?}")));
                 }
                 readings[c] = (!p[k].is_nan()).then_some(p[k]);
-            }
-            if ns < t0 {
-                continue;
             }
             events.push((
                 ns,
@@ -376,26 +413,23 @@ fn read_mcap(
         }
     }
     events.sort_by_key(|(ns, order, _)| (*ns, *order));
-    let samples = events
-        .into_iter()
-        .map(|(ns, _, mut s)| {
-            s.t = (ns - t0) as f64 * 1e-9;
-            s
-        })
-        .collect();
-    Ok(RecordedLog {
-        source: path.to_path_buf(),
+    let stamp_kind = if stamped { "header" } else { "log" };
+    Ok(McapPart {
+        samples: events.into_iter().map(|(ns, _, s)| (ns, s)).collect(),
+        first_ns: t0,
+        last_ns: last,
+        stamped,
+        messages: count,
         described: match camera {
             Some(c) => format!(
-                "{topic} (sensor_msgs/msg/JointState), {c} (geometry_msgs/msg/PointStamped), {} time",
-                if stamped { "header" } else { "log" }
+                "{topic} (sensor_msgs/msg/JointState), {c} (geometry_msgs/msg/PointStamped), \
+                 {stamp_kind} time"
             ),
             None => format!(
-                "{topic} (sensor_msgs/msg/JointState; no camera topic: the camera's readings are missing), {} time",
-                if stamped { "header" } else { "log" }
+                "{topic} (sensor_msgs/msg/JointState; no camera topic: the camera's readings \
+                 are missing), {stamp_kind} time"
             ),
         },
-        samples,
     })
 }
 

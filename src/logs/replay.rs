@@ -16,13 +16,12 @@
 
 use std::time::Instant;
 
+use super::LogError;
 use super::recorded::RecordedLog;
 use crate::estimation::EstimatorInput;
 use crate::precision::{Calibration, PrecisionInput};
-use crate::scenario::metrics::RunMetrics;
-use crate::scenario::runner::{
-    DivergenceReason, Observer, Observers, Outcome, RunStart, TickRecord,
-};
+use crate::scenario::metrics::{DivergenceGuard, RunMetrics};
+use crate::scenario::runner::{Observer, Observers, Outcome, RunStart, TickRecord};
 use crate::scenario::{MAX_TICKS, Method, RunResult, RunSetup, ScenarioError};
 use crate::sensors::Readings;
 
@@ -44,15 +43,42 @@ pub fn tick_of(t: f64, dt: f64) -> u64 {
     (t / dt - 1e-9).ceil().max(0.0) as u64
 }
 
-/// The duration (s) a scenario needs to cover `log` at tick length `dt`: the last sample's tick
-/// plus one, in ticks of `dt`.
-pub fn duration_of(log: &RecordedLog, dt: f64) -> f64 {
+/// The ticks of `dt` that cover `log` (the last sample's tick plus one), checked against
+/// [`MAX_TICKS`].
+pub fn ticks_of(log: &RecordedLog, dt: f64) -> Result<u64, LogError> {
     let last = log.samples.last().map_or(0.0, |s| s.t);
-    (tick_of(last, dt) + 1) as f64 * dt
+    // (Times are finite and non-negative: checked when read.)
+    if last / dt >= MAX_TICKS as f64 {
+        return Err(LogError::Bad {
+            path: log.source.clone(),
+            field: "time".into(),
+            message: format!(
+                "the log spans {last} s: at dt = {dt} s more than the {MAX_TICKS} ticks replayed"
+            ),
+        });
+    }
+    Ok(tick_of(last, dt) + 1)
 }
 
-/// Runs `method` over `log` with `setup` (whose scenario's duration should be
-/// [`duration_of`] the log, so that the metrics' windows fit it). `extra` observers see every
+/// Makes `setup` the replay's: its duration covers `log` (checked: call it before any output is
+/// staged), and its method and seed are `method` and `seed`.
+pub fn prepare(
+    setup: &mut RunSetup,
+    log: &RecordedLog,
+    method: Method,
+    seed: u64,
+) -> Result<(), LogError> {
+    let dt = setup.scenario().dt;
+    let ticks = ticks_of(log, dt)?;
+    let sc = &mut setup.loaded.scenario;
+    sc.duration = ticks as f64 * dt;
+    sc.precision.method = method;
+    sc.seed = seed;
+    Ok(())
+}
+
+/// Runs `method` over `log` with `setup` (made the replay's by [`prepare`], so that the
+/// metrics' windows fit the log). `extra` observers see every
 /// tick (a trajectory writer, the plots' recorder).
 pub fn replay(
     setup: &RunSetup,
@@ -66,17 +92,11 @@ pub fn replay(
     let dt = sc.dt;
     let layout = setup.layout;
     let n = layout.n_joints();
-    let last = log.samples.last().map_or(0.0, |s| s.t);
-    let ticks = tick_of(last, dt) + 1;
-    if ticks > MAX_TICKS {
-        return Err(ScenarioError::Invalid {
-            path: log.source.clone(),
-            field: "time".into(),
-            message: format!(
-                "{last} s at dt = {dt} s is {ticks} ticks; at most {MAX_TICKS} are replayed"
-            ),
-        });
-    }
+    let ticks = ticks_of(log, dt).map_err(|e| ScenarioError::Invalid {
+        path: log.source.clone(),
+        field: "time".into(),
+        message: e.to_string(),
+    })?;
     let nominal = setup.nominal_precisions();
     let (mut estimator, mut precision) = crate::scenario::method::build(
         method,
@@ -177,15 +197,7 @@ pub fn replay(
         };
         extra.iter(&record);
         metrics.iter(&record);
-        let insane = |v: &[f64], limit: f64| v.iter().any(|x| !x.is_finite() || x.abs() > limit);
-        let diverged = if !estimate.finite {
-            Some(DivergenceReason::BeliefNonFinite)
-        } else if insane(record.mu, 1e3) || insane(record.mu_p, 1e4) {
-            Some(DivergenceReason::BeliefOutOfRange)
-        } else {
-            None
-        };
-        if let Some(reason) = diverged {
+        if let Some(reason) = DivergenceGuard::check_belief(&record) {
             outcome = Outcome::Diverged { tick: k, reason };
             break;
         }

@@ -219,19 +219,10 @@ fn csv(
             p.test.w_plus,
             p.test.w_minus,
             p.test.p_value,
-            better_name(p),
+            p.better_name(),
         );
     }
     out
-}
-
-/// The method a comparison favours, or `neither`.
-fn better_name(p: &PairComparison) -> &'static str {
-    match p.better {
-        Better::A => p.a.name(),
-        Better::B => p.b.name(),
-        Better::Neither => "neither",
-    }
 }
 
 /// The campaign.md section of paired comparisons: per ordered pair, the cells where the row's
@@ -584,19 +575,11 @@ pub fn campaign_json(
         "comparisons": {
             "test": "Wilcoxon signed-rank, two-sided, seeds paired, log10 of the post-fault MSE ratio a/b",
             "alpha": compare::ALPHA,
-            "pairs": pairs.iter().map(|p| json!({
-                "cell": p.cell,
-                "a": p.a.name(),
-                "b": p.b.name(),
-                "seeds": p.seeds,
-                "nonzero_pairs": p.test.pairs,
-                "median_log10_ratio": p.median_log10_ratio,
-                "w_plus": p.test.w_plus,
-                "w_minus": p.test.w_minus,
-                "p_value": p.test.p_value,
-                "exact": p.test.exact,
-                "better": better_name(p),
-            })).collect::<Vec<_>>(),
+            "pairs": pairs.iter().map(|p| {
+                let mut j = p.json();
+                j["cell"] = json!(p.cell);
+                j
+            }).collect::<Vec<_>>(),
         },
         "reaching_heading": reaching_heading(campaign).0,
         "reaching_definition": reaching_heading(campaign).1,

@@ -772,6 +772,11 @@ impl ChatterMonitor {
     }
 }
 
+/// Whether any value is not finite or beyond `limit` in size.
+fn insane(v: &[f64], limit: f64) -> bool {
+    v.iter().any(|x| !x.is_finite() || x.abs() > limit)
+}
+
 /// Stops a run whose state or belief leaves any sane range: an observer of every tick.
 #[derive(Clone, Debug, Default)]
 pub struct DivergenceGuard {
@@ -781,11 +786,19 @@ pub struct DivergenceGuard {
 impl DivergenceGuard {
     /// Why the run must stop at this tick, if it must.
     pub fn check(r: &TickRecord<'_>) -> Option<DivergenceReason> {
-        let insane = |v: &[f64], limit: f64| v.iter().any(|x| !x.is_finite() || x.abs() > limit);
         if !r.estimate.finite {
             Some(DivergenceReason::BeliefNonFinite)
         } else if insane(r.q, 1e3) || insane(r.qd, 1e4) {
             Some(DivergenceReason::StateOutOfRange)
+        } else {
+            Self::check_belief(r)
+        }
+    }
+
+    /// The belief's part of [`Self::check`] (for a replay, which has no plant state).
+    pub fn check_belief(r: &TickRecord<'_>) -> Option<DivergenceReason> {
+        if !r.estimate.finite {
+            Some(DivergenceReason::BeliefNonFinite)
         } else if insane(r.mu, 1e3) || insane(r.mu_p, 1e4) {
             Some(DivergenceReason::BeliefOutOfRange)
         } else {

@@ -358,6 +358,7 @@ fn replay(args: ReplayArgs) -> Result<(), Failure> {
             camera: args.camera_topic.clone(),
         },
     )
+    .and_then(|log| aift::logs::replay::prepare(&mut setup, &log, method, seed).map(|()| log))
     .map_err(|e| {
         if e.is_input_error() {
             bad_input(e)
@@ -366,9 +367,6 @@ fn replay(args: ReplayArgs) -> Result<(), Failure> {
         }
     })?;
     let dt = setup.scenario().dt;
-    setup.loaded.scenario.duration = aift::logs::replay::duration_of(&log, dt);
-    setup.loaded.scenario.precision.method = method;
-    setup.loaded.scenario.seed = seed;
     let dir = args.out.clone().unwrap_or_else(|| {
         let stem = args
             .log
@@ -456,21 +454,10 @@ fn compare(args: CompareArgs) -> Result<(), Failure> {
             "cells": pairs.len(),
             "pairs": pairs.iter().map(|p| {
                 let (arm, cell) = label(p.cell);
-                serde_json::json!({
-                    "arm": arm,
-                    "cell": cell,
-                    "seeds": p.seeds,
-                    "median_log10_ratio": p.median_log10_ratio,
-                    "w_plus": p.test.w_plus,
-                    "w_minus": p.test.w_minus,
-                    "p_value": p.test.p_value,
-                    "exact": p.test.exact,
-                    "better": match p.better {
-                        Better::A => a.name(),
-                        Better::B => b.name(),
-                        Better::Neither => "neither",
-                    },
-                })
+                let mut j = p.json();
+                j["arm"] = serde_json::json!(arm);
+                j["cell"] = serde_json::json!(cell);
+                j
             }).collect::<Vec<_>>(),
         });
         outln!("{doc}");
@@ -498,9 +485,8 @@ fn compare(args: CompareArgs) -> Result<(), Failure> {
             p.median_log10_ratio,
             p.test.p_value,
             match p.better {
-                Better::A => a.name(),
-                Better::B => b.name(),
                 Better::Neither => "-",
+                _ => p.better_name(),
             }
         );
     }

@@ -165,10 +165,39 @@ pub struct PairComparison {
     /// Seeds both methods ran in the cell.
     pub seeds: usize,
     /// Median over the seeds of log10(MSE_a / MSE_b) (negative: a's error is smaller; +-inf when
-    /// more than half the pairs have one side diverged).
+    /// more than half the pairs have the same side diverged; NaN when the middle two are -inf and
+    /// +inf).
     pub median_log10_ratio: f64,
     pub test: SignedRank,
     pub better: Better,
+}
+
+impl PairComparison {
+    /// The method the comparison favours, or `neither`.
+    pub fn better_name(&self) -> &'static str {
+        match self.better {
+            Better::A => self.a.name(),
+            Better::B => self.b.name(),
+            Better::Neither => "neither",
+        }
+    }
+
+    /// The comparison as campaign.json and `aift compare --json` write it (the cell named by
+    /// the caller).
+    pub fn json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "a": self.a.name(),
+            "b": self.b.name(),
+            "seeds": self.seeds,
+            "nonzero_pairs": self.test.pairs,
+            "median_log10_ratio": self.median_log10_ratio,
+            "w_plus": self.test.w_plus,
+            "w_minus": self.test.w_minus,
+            "p_value": self.test.p_value,
+            "exact": self.test.exact,
+            "better": self.better_name(),
+        })
+    }
 }
 
 /// d = log10(MSE_a) - log10(MSE_b), a non-finite MSE counting as the worst (module docs).
@@ -347,11 +376,25 @@ mod tests {
             "{} {approx}",
             exact.p_value
         );
-        // Beyond the exact range the approximation is used.
-        let long: Vec<f64> = (0..(EXACT_MAX_PAIRS + 1))
-            .map(|i| ((i as f64) * 0.37).sin() + 0.01)
+        // Beyond the exact range the approximation is used: 253 non-zero pairs with many ties
+        // (values rounded to 0.1). Reference: SciPy 1.x `wilcoxon(d, zero_method="wilcox",
+        // correction=True, method="approx")` on the same numbers (computed with numpy's sin and
+        // cos, 2026-12-04): statistic min(W+, W-) = 13901.5, p = 0.06304774332731036.
+        let long: Vec<f64> = (0..260)
+            .map(|i| {
+                let x = ((i as f64) * 0.37).sin() + 0.08 + 0.3 * ((i as f64) * 1.3).cos();
+                (x * 10.0).round() / 10.0
+            })
             .collect();
-        assert!(!signed_rank(&long).exact);
+        let t = signed_rank(&long);
+        assert!(!t.exact);
+        assert_eq!(t.pairs, 253);
+        assert_eq!(t.w_plus.min(t.w_minus), 13901.5);
+        assert!(
+            (t.p_value - 0.063_047_743_327_310_36).abs() < 1e-6,
+            "{}",
+            t.p_value
+        );
     }
 
     #[test]
