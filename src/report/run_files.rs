@@ -217,6 +217,53 @@ pub fn run_staged(staged: &Staged, run: Run<'_>) -> Result<RunResult, ReportErro
     run_staged_with(staged, run, &RunFileOptions::default())
 }
 
+/// trajectory.csv streamed while a run goes, and the rows its plots are drawn from.
+struct TrajectoryFiles {
+    path: PathBuf,
+    every: u64,
+    writer: TrajectoryWriter<std::fs::File>,
+    /// The rows of the trajectory file (every `record_every`-th tick), decimated as a reader of
+    /// that file decimates them: `aift report` on the folder draws the same page.
+    plot_rows: TrajectoryRecorder,
+}
+
+impl TrajectoryFiles {
+    fn create(dir: &Path, setup: &RunSetup) -> Result<Self, ReportError> {
+        let path = dir.join(TRAJECTORY);
+        let file = std::fs::File::create(&path).map_err(|source| fsio::FsError::Write {
+            path: path.clone(),
+            source,
+        })?;
+        let every = setup.scenario().record_every;
+        Ok(Self {
+            writer: TrajectoryWriter::new(TrajectorySchema::new(&setup.layout), file),
+            plot_rows: TrajectoryRecorder::bounded_with_stride(&setup.layout, PLOT_ROWS, every),
+            path,
+            every,
+        })
+    }
+
+    fn observe<'a>(&'a mut self, observers: &mut Observers<'a>) {
+        observers.push(&mut self.writer, ObserverMode::Every(self.every));
+        observers.push(&mut self.plot_rows, ObserverMode::Always);
+    }
+
+    /// Flushes the file to disk; the plots' rows and how many rows the file has.
+    fn finish(self) -> Result<(TrajectoryRecorder, u64), ReportError> {
+        let write_err = |source| fsio::FsError::Write {
+            path: self.path.clone(),
+            source,
+        };
+        let rows = self.writer.rows();
+        self.writer
+            .finish()
+            .map_err(write_err)?
+            .sync_all()
+            .map_err(write_err)?;
+        Ok((self.plot_rows, rows))
+    }
+}
+
 /// What a run folder holds beyond its fixed files.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct RunFileOptions {
@@ -235,20 +282,11 @@ pub fn run_staged_with(
     let setup = run.setup();
     let method = run.method();
     let dir = staged.path().to_path_buf();
-    let path = dir.join(TRAJECTORY);
-    let file = std::fs::File::create(&path).map_err(|source| fsio::FsError::Write {
-        path: path.clone(),
-        source,
-    })?;
     let every = setup.scenario().record_every;
-    let mut writer = TrajectoryWriter::new(TrajectorySchema::new(&setup.layout), file);
-    // The rows of the trajectory file (every `record_every`-th tick), decimated as a reader of
-    // that file decimates them: `aift report` on the folder draws the same page.
-    let mut plot_rows = TrajectoryRecorder::bounded_with_stride(&setup.layout, PLOT_ROWS, every);
+    let mut files = TrajectoryFiles::create(&dir, setup)?;
     let calibration = run.calibration_given();
     let mut observers = Observers::new();
-    observers.push(&mut writer, ObserverMode::Every(every));
-    observers.push(&mut plot_rows, ObserverMode::Always);
+    files.observe(&mut observers);
     let mcap_path = dir.join(crate::logs::RUN_MCAP);
     let mcap_err = |e: mcap::McapError| fsio::FsError::Write {
         path: mcap_path.clone(),
@@ -286,16 +324,7 @@ pub fn run_staged_with(
                 source,
             })?;
     }
-    let write_err = |source| fsio::FsError::Write {
-        path: path.clone(),
-        source,
-    };
-    let trajectory_rows = writer.rows();
-    writer
-        .finish()
-        .map_err(write_err)?
-        .sync_all()
-        .map_err(write_err)?;
+    let (plot_rows, trajectory_rows) = files.finish()?;
     write_run(
         &dir,
         setup,
@@ -322,30 +351,13 @@ pub fn replay_staged(
     log: &crate::logs::RecordedLog,
 ) -> Result<(RunResult, crate::logs::ReplayInfo), ReportError> {
     let dir = staged.path().to_path_buf();
-    let path = dir.join(TRAJECTORY);
-    let file = std::fs::File::create(&path).map_err(|source| fsio::FsError::Write {
-        path: path.clone(),
-        source,
-    })?;
-    let every = setup.scenario().record_every;
-    let mut writer = TrajectoryWriter::new(TrajectorySchema::new(&setup.layout), file);
-    let mut plot_rows = TrajectoryRecorder::bounded_with_stride(&setup.layout, PLOT_ROWS, every);
+    let mut files = TrajectoryFiles::create(&dir, setup)?;
     let mut observers = Observers::new();
-    observers.push(&mut writer, ObserverMode::Every(every));
-    observers.push(&mut plot_rows, ObserverMode::Always);
+    files.observe(&mut observers);
     let (result, info) =
         crate::logs::replay(setup, method, seed, calibration, log, &mut observers)?;
     drop(observers);
-    let write_err = |source| fsio::FsError::Write {
-        path: path.clone(),
-        source,
-    };
-    let trajectory_rows = writer.rows();
-    writer
-        .finish()
-        .map_err(write_err)?
-        .sync_all()
-        .map_err(write_err)?;
+    let (plot_rows, trajectory_rows) = files.finish()?;
     write_run(
         &dir,
         setup,
