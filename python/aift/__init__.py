@@ -296,10 +296,12 @@ class Sim:
     missing). ``obs`` has ``t``, ``q``, ``qd`` (the plant), ``mu``, ``mu_p`` (the belief),
     ``target``, ``u``, ``y`` (readings, in ``sim.channels`` order) and ``precision``; ``info``
     has ``free_energy``, ``alarm``, ``isolated``, ``diverged`` and ``done`` (the scenario's last
-    tick). With nothing supplied the ticks equal :func:`run`'s bit for bit.
+    tick). With nothing supplied the ticks equal :func:`run`'s bit for bit. ``method`` may be a
+    method written in Python (an object, reset on each ``reset``, or a class, instantiated on
+    each ``reset``; docs/python.md, "Bring your own method").
     """
 
-    def __init__(self, scenario=None, method: Optional[str] = None, *, calib=None):
+    def __init__(self, scenario=None, method=None, *, calib=None):
         self._sim = _aift.Sim(_scenario(scenario), method, _path(calib))
 
     def reset(self, seed: Optional[int] = None, readings=None):

@@ -865,6 +865,11 @@ fn run_campaign(
 struct PySim {
     setup: RunSetup,
     method: Method,
+    /// A method written in Python (its name and object, or class to instantiate on each
+    /// reset), in place of `method`.
+    custom: Option<(String, Py<PyAny>)>,
+    /// Its failure, raised by the call that met it.
+    failure: custom::Failure,
     calibration: Option<Calibration>,
     /// In a mutex only to make a `Sim` shareable between Python threads (a pyclass must be
     /// `Sync`); every access is through `&mut self`, which PyO3 guards (a second thread using
@@ -874,6 +879,20 @@ struct PySim {
 }
 
 impl PySim {
+    /// Raises a Python method's failure met by the last tick (the simulation is dropped:
+    /// reset() to start over).
+    fn raise_failure(&mut self, py: Python<'_>) -> PyResult<()> {
+        let Some((tick, err)) = self.failure.lock().expect("not poisoned").take() else {
+            return Ok(());
+        };
+        *self
+            .sim
+            .get_mut()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = None;
+        let name = self.custom.as_ref().map_or("", |(n, _)| n.as_str());
+        Err(custom::raise(py, name, tick, err))
+    }
+
     fn readings(&self, values: Option<Vec<Option<f64>>>) -> PyResult<Option<Readings>> {
         let Some(values) = values else {
             return Ok(None);
@@ -959,19 +978,30 @@ impl PySim {
     fn new(
         py: Python<'_>,
         scenario: &PyScenario,
-        method: Option<&str>,
+        method: Option<Bound<'_, PyAny>>,
         calib: Option<PathBuf>,
     ) -> PyResult<Self> {
         let mut setup = scenario.prepare(py)?;
-        let method = match method {
-            Some(m) => parse_method(m, "method")?,
-            None => setup.scenario().precision.method,
+        let (method, custom) = match method {
+            Some(m) if m.is_instance_of::<PyString>() => {
+                (parse_method(&m.extract::<String>()?, "method")?, None)
+            }
+            Some(obj) => (
+                Method::NoFt,
+                Some((custom::method_name(&obj)?, obj.unbind())),
+            ),
+            None => (setup.scenario().precision.method, None),
         };
         setup.loaded.scenario.precision.method = method;
-        let calibration = calibration(py, &setup, &[method], calib.as_deref())?;
+        let calibration = match custom {
+            None => calibration(py, &setup, &[method], calib.as_deref())?,
+            Some(_) => None,
+        };
         Ok(Self {
             setup,
             method,
+            custom,
+            failure: Default::default(),
             calibration,
             sim: std::sync::Mutex::new(None),
             diverged: None,
@@ -989,12 +1019,35 @@ impl PySim {
     ) -> PyResult<(Bound<'py, PyDict>, Bound<'py, PyDict>)> {
         let readings = self.readings(readings)?;
         let seed = seed.unwrap_or(self.setup.scenario().seed);
-        let mut sim = Run::new(&self.setup, self.method)
+        let run = match &self.custom {
+            None => Run::new(&self.setup, self.method).calibration(self.calibration.as_ref()),
+            Some((name, obj)) => {
+                // A class: a new instance for each reset; an object: the same one, reset.
+                let obj = obj.bind(py);
+                let obj = if obj.is_instance_of::<pyo3::types::PyType>() {
+                    obj.call0()?
+                } else {
+                    obj.clone()
+                };
+                let sc = self.setup.scenario();
+                custom::reset(
+                    &obj,
+                    &self.setup.layout,
+                    sc.dt,
+                    &self.setup.nominal_precisions(),
+                    seed,
+                )?;
+                self.failure = Default::default();
+                let parts = custom::build_parts(&obj, name, &self.setup, seed, &self.failure)?;
+                Run::with_parts(&self.setup, name, parts)
+            }
+        };
+        let mut sim = run
             .seed(seed)
-            .calibration(self.calibration.as_ref())
             .simulation()
             .map_err(|e| scenario_err(e, &[]))?;
         sim.decide(readings.as_ref());
+        self.raise_failure(py)?;
         *self
             .sim
             .get_mut()
@@ -1045,6 +1098,7 @@ impl PySim {
         }
         sim.actuate(torques.as_deref());
         sim.decide(readings.as_ref());
+        self.raise_failure(py)?;
         self.observe(py)
     }
 
@@ -1077,7 +1131,10 @@ impl PySim {
 
     #[getter]
     fn method(&self) -> String {
-        self.method.name().to_string()
+        match &self.custom {
+            Some((name, _)) => name.clone(),
+            None => self.method.name().to_string(),
+        }
     }
 
     /// Each joint's effort limit from the URDF (None where it has none).

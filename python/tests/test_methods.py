@@ -135,3 +135,21 @@ def test_a_table_needs_classes_and_raises_a_failing_run():
         aift.table(short(), [Raises], seeds=2)
     notes = " ".join(getattr(info.value, "__notes__", []))
     assert "seed" in notes and "at tick 100" in notes, notes
+
+
+def test_the_step_api_takes_a_python_method():
+    sc = short()
+    mine, builtin = aift.Sim(sc, NominalPrecisions), aift.Sim(sc, "no-ft")
+    assert mine.method == "nominal"
+    (a, _), (b, _) = mine.reset(seed=4), builtin.reset(seed=4)
+    for _ in range(300):
+        (a, _), (b, _) = mine.step(), builtin.step()
+    assert_same_bits(a["mu"], b["mu"], "mu")
+    assert_same_bits(a["precision"], b["precision"], "precision")
+    failing = aift.Sim(sc, Raises)
+    failing.reset(seed=1)
+    with pytest.raises(ZeroDivisionError) as info:
+        for _ in range(200):
+            failing.step()
+    assert "at tick 100" in " ".join(getattr(info.value, "__notes__", []))
+    failing.reset(seed=1)  # a new instance of the class: starts over
