@@ -92,6 +92,24 @@ fn run_table_and_campaign_write_a_self_contained_report() {
         let page = std::fs::read_to_string(path.join(html::REPORT)).unwrap();
         assert_self_contained(&page);
         assert!(page.contains(expect), "{folder}: no {expect:?}");
+        if kind == FolderKind::Campaign {
+            // One seed: no cell can favour either method; the matrix counts 0 of every cell.
+            let doc: serde_json::Value =
+                serde_json::from_str(&std::fs::read_to_string(path.join("campaign.json")).unwrap())
+                    .unwrap();
+            let cells = doc["cells"].as_array().unwrap().len();
+            let start = page
+                .find("id=\"comparisons\"")
+                .expect("a comparisons section");
+            let section = &page[start..start + page[start..].find("</table>").unwrap()];
+            assert_eq!(
+                section
+                    .matches(&format!("<td class=num>0/{cells}</td>"))
+                    .count(),
+                2,
+                "{section}"
+            );
+        }
         // `aift report` writes the same page again from the folder's files (for a run, from
         // the trajectory file instead of the run's recorder: the same rows).
         std::fs::remove_file(path.join(html::REPORT)).unwrap();

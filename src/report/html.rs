@@ -642,6 +642,7 @@ fn campaign_page(dir: &Path) -> Result<String, ReportError> {
         }
     }
     let mut body = campaign_summary(&arms, &doc);
+    comparisons_matrix(&mut body, &methods, &doc);
     for arm in &arms {
         arm_matrix(&mut body, dir, arm, &methods, &cells)?;
     }
@@ -665,6 +666,12 @@ fn campaign_summary(arms: &[String], doc: &Value) -> String {
     for a in arms {
         let _ = write!(body, "<a href=\"#arm-{}\">{}</a>", esc(a), esc(a));
     }
+    if doc["comparisons"]["pairs"]
+        .as_array()
+        .is_some_and(|p| !p.is_empty())
+    {
+        body.push_str("<a href=\"#comparisons\">Comparisons</a>");
+    }
     body.push_str("<a href=\"#cells\">Cells</a></nav>\n<h2 id=\"summary\">Per method</h2>\n<table><tr><th>method</th><th>cells</th><th>recovered</th><th>degraded</th><th>failed</th><th>diverged</th><th>worse than no-FT</th><th>recovers where the oracle does</th><th>within 10x the oracle</th><th>false alarms / h</th></tr>");
     for m in doc["summary"].as_array().into_iter().flatten() {
         let g = |k: &str| value_html(m.get(k).unwrap_or(&Value::Null));
@@ -687,6 +694,50 @@ fn campaign_summary(arms: &[String], doc: &Value) -> String {
     }
     body.push_str("</table>\n");
     body
+}
+
+/// The paired comparisons (campaign.json's `comparisons`, when there are any): per ordered pair,
+/// the cells where the row's method is better than the column's.
+fn comparisons_matrix(body: &mut String, methods: &[String], doc: &Value) {
+    let pairs: Vec<&Value> = doc["comparisons"]["pairs"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .collect();
+    if pairs.is_empty() || methods.len() < 2 {
+        return;
+    }
+    let _ = write!(
+        body,
+        "<h2 id=\"comparisons\">Paired comparisons</h2>\n<p>Entry (row A, column B): the cells where \
+         A's post-fault MSE is lower than B's (Wilcoxon signed-rank over the seeds, two-sided, at \
+         {}; no correction for the number of cells), out of the cells both ran.</p>\n<table><tr><th>A better than B</th>",
+        value_html(&doc["comparisons"]["alpha"])
+    );
+    for m in methods {
+        let _ = write!(body, "<th>{}</th>", esc(m));
+    }
+    body.push_str("</tr>");
+    for a in methods {
+        let _ = write!(body, "<tr><td>{}</td>", esc(a));
+        for b in methods {
+            if a == b {
+                body.push_str("<td class=num>-</td>");
+                continue;
+            }
+            let (mut wins, mut of) = (0, 0);
+            for p in &pairs {
+                let (pa, pb) = (p["a"].as_str(), p["b"].as_str());
+                if (pa, pb) == (Some(a), Some(b)) || (pa, pb) == (Some(b), Some(a)) {
+                    of += 1;
+                    wins += usize::from(p["better"].as_str() == Some(a.as_str()));
+                }
+            }
+            let _ = write!(body, "<td class=num>{wins}/{of}</td>");
+        }
+        body.push_str("</tr>");
+    }
+    body.push_str("</table>\n");
 }
 
 /// An arm's heatmap and its matrix (a row per cell, an entry per method linking to the cell).
