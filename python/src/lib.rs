@@ -23,8 +23,8 @@ use aift::scenario::calibrate;
 use aift::scenario::campaign::{self, Campaign, CampaignConfig, Shard};
 use aift::scenario::metrics::DivergenceGuard;
 use aift::scenario::{
-    LoadedScenario, Method, Observer, ObserverMode, Run, RunSetup, ScenarioError, Simulation,
-    StopReason, TickRecord, TrajectoryColumns, method::MethodParts, table,
+    LoadedScenario, Method, Observer, ObserverMode, Run, RunResult, RunSetup, ScenarioError,
+    Simulation, StopReason, TickRecord, TrajectoryColumns, method::MethodParts, table,
 };
 use aift::sensors::Readings;
 
@@ -393,6 +393,115 @@ fn columns_bytes<'py>(
     })
 }
 
+/// What `run` and `run_method` keep around a run: the trajectory in memory (unless
+/// `trajectory = false`), the staged run folder (with `out`), the Ctrl-C check.
+struct RunOutputs {
+    columns: Option<TrajectoryColumns>,
+    staged: Option<Staged>,
+    interrupt: Interrupt,
+    every: u64,
+    mcap: bool,
+}
+
+impl RunOutputs {
+    /// Checks the outputs before any work: the trajectory's size, the output folder.
+    fn begin(
+        setup: &RunSetup,
+        out: Option<&Path>,
+        force: bool,
+        trajectory: bool,
+        mcap: bool,
+    ) -> PyResult<Self> {
+        if mcap && out.is_none() {
+            return Err(bad(
+                "mcap=True writes run.mcap into the run folder: pass out=",
+            ));
+        }
+        let sc = setup.scenario();
+        let columns = if trajectory {
+            Some(
+                TrajectoryColumns::new(&setup.layout, sc.ticks(), sc.record_every).map_err(
+                    |m| {
+                        bad(format!(
+                            "{}: `record_every`: {m} (or pass trajectory=False)",
+                            setup.loaded.path.display()
+                        ))
+                    },
+                )?,
+            )
+        } else {
+            None
+        };
+        let staged = match out {
+            Some(dir) => Some(Staged::begin(dir, OutputKind::Folder, force).map_err(file_err)?),
+            None => None,
+        };
+        Ok(Self {
+            columns,
+            staged,
+            interrupt: Interrupt {
+                interrupted: Cell::new(false),
+            },
+            every: sc.record_every,
+            mcap,
+        })
+    }
+
+    /// Executes the run `build` makes (without the GIL: a run with observers is not `Send`, so
+    /// it is built on the other side), into the staged folder or in memory.
+    fn execute<'a>(
+        &'a mut self,
+        py: Python<'_>,
+        build: impl FnOnce() -> Run<'a> + Send,
+    ) -> PyResult<RunResult> {
+        let Self {
+            columns,
+            staged,
+            interrupt,
+            every,
+            mcap,
+        } = self;
+        let options = run_files::RunFileOptions { mcap: *mcap };
+        py.detach(|| {
+            let mut run = build().observe(interrupt, ObserverMode::Every(INTERRUPT_TICKS));
+            if let Some(c) = columns.as_mut() {
+                run = run.observe(c, ObserverMode::Every(*every));
+            }
+            match staged.as_ref() {
+                Some(staged) => {
+                    run_files::run_staged_with(staged, run, &options).map_err(report_err)
+                }
+                None => run.execute().map_err(|e| scenario_err(e, &[])),
+            }
+        })
+    }
+
+    /// After the run: an interrupted one raises KeyboardInterrupt (its folder dropped); else
+    /// the folder is committed and the summary and trajectory returned.
+    fn finish<'py>(
+        self,
+        py: Python<'py>,
+        setup: &RunSetup,
+        result: &RunResult,
+    ) -> PyResult<RunOutput<'py>> {
+        if self.interrupt.interrupted.get() {
+            return Err(PyKeyboardInterrupt::new_err("aift.run interrupted"));
+        }
+        if let Some(staged) = self.staged {
+            staged.commit().map_err(file_err)?;
+        }
+        let summary = serde_json::to_string(&run_files::summary_json(setup, result))
+            .expect("a summary serialises");
+        let names = self
+            .columns
+            .as_ref()
+            .map(|c| c.names().to_vec())
+            .unwrap_or_default();
+        let bytes = columns_bytes(py, self.columns.as_ref())?;
+        Ok((summary, names, bytes))
+    }
+}
+
 /// Runs a scenario: in memory, or into the run folder `out` (the CLI's files, written whole
 /// or not at all: an interrupted run leaves no folder). With `trajectory = false` nothing of
 /// the trajectory is held in memory (with `out`, the file has it).
@@ -410,11 +519,6 @@ fn run<'py>(
     trajectory: bool,
     mcap: bool,
 ) -> PyResult<RunOutput<'py>> {
-    if mcap && out.is_none() {
-        return Err(bad(
-            "mcap=True writes run.mcap into the run folder: pass out=",
-        ));
-    }
     let mut setup = scenario.prepare(py)?;
     let method = match method {
         Some(m) => parse_method(m, "method")?,
@@ -423,59 +527,14 @@ fn run<'py>(
     let seed = seed.unwrap_or(setup.scenario().seed);
     setup.loaded.scenario.precision.method = method;
     setup.loaded.scenario.seed = seed;
-    let sc = setup.scenario();
-    let mut columns = if trajectory {
-        Some(
-            TrajectoryColumns::new(&setup.layout, sc.ticks(), sc.record_every).map_err(|m| {
-                bad(format!(
-                    "{}: `record_every`: {m} (or pass trajectory=False)",
-                    setup.loaded.path.display()
-                ))
-            })?,
-        )
-    } else {
-        None
-    };
-    let staged = match &out {
-        Some(dir) => Some(Staged::begin(dir, OutputKind::Folder, force).map_err(file_err)?),
-        None => None,
-    };
+    let mut outputs = RunOutputs::begin(&setup, out.as_deref(), force, trajectory, mcap)?;
     let cal = calibration(py, &setup, &[method], calib.as_deref())?;
-    let mut interrupt = Interrupt {
-        interrupted: Cell::new(false),
-    };
-    let every = sc.record_every;
-    let result = py.detach(|| {
-        let mut run = Run::new(&setup, method)
+    let result = outputs.execute(py, || {
+        Run::new(&setup, method)
             .seed(seed)
             .calibration(cal.as_ref())
-            .observe(&mut interrupt, ObserverMode::Every(INTERRUPT_TICKS));
-        if let Some(c) = columns.as_mut() {
-            run = run.observe(c, ObserverMode::Every(every));
-        }
-        match &staged {
-            Some(staged) => {
-                run_files::run_staged_with(staged, run, &run_files::RunFileOptions { mcap })
-                    .map_err(report_err)
-            }
-            None => run.execute().map_err(|e| scenario_err(e, &[])),
-        }
     })?;
-    if interrupt.interrupted.get() {
-        // The staged folder is dropped: nothing appears.
-        return Err(PyKeyboardInterrupt::new_err("aift.run interrupted"));
-    }
-    if let Some(staged) = staged {
-        staged.commit().map_err(file_err)?;
-    }
-    let summary = serde_json::to_string(&run_files::summary_json(&setup, &result))
-        .expect("a summary serialises");
-    let names = columns
-        .as_ref()
-        .map(|c| c.names().to_vec())
-        .unwrap_or_default();
-    let bytes = columns_bytes(py, columns.as_ref())?;
-    Ok((summary, names, bytes))
+    outputs.finish(py, &setup, &result)
 }
 
 /// A method written in Python (`custom.rs`) run on a scenario, as [`run`] runs a built-in one:
@@ -494,11 +553,6 @@ fn run_method<'py>(
     trajectory: bool,
     mcap: bool,
 ) -> PyResult<RunOutput<'py>> {
-    if mcap && out.is_none() {
-        return Err(bad(
-            "mcap=True writes run.mcap into the run folder: pass out=",
-        ));
-    }
     let setup = scenario.prepare(py)?;
     let seed = seed.unwrap_or(setup.scenario().seed);
     let name = custom::method_name(&method)?;
@@ -512,63 +566,20 @@ fn run_method<'py>(
     )?;
     let failure: custom::Failure = Default::default();
     let parts = custom::build_parts(&method, &name, &setup, seed, &failure)?;
-    let mut columns = if trajectory {
-        Some(
-            TrajectoryColumns::new(&setup.layout, sc.ticks(), sc.record_every).map_err(|m| {
-                bad(format!(
-                    "{}: `record_every`: {m} (or pass trajectory=False)",
-                    setup.loaded.path.display()
-                ))
-            })?,
-        )
-    } else {
-        None
-    };
-    let staged = match &out {
-        Some(dir) => Some(Staged::begin(dir, OutputKind::Folder, force).map_err(file_err)?),
-        None => None,
-    };
-    let mut interrupt = Interrupt {
-        interrupted: Cell::new(false),
-    };
+    let mut outputs = RunOutputs::begin(&setup, out.as_deref(), force, trajectory, mcap)?;
     let mut guard = custom::MethodGuard {
         failure: failure.clone(),
     };
-    let every = sc.record_every;
-    let result = py.detach(|| {
-        let mut run = Run::with_parts(&setup, &name, parts)
+    let result = outputs.execute(py, || {
+        Run::with_parts(&setup, &name, parts)
             .seed(seed)
-            .observe(&mut interrupt, ObserverMode::Every(INTERRUPT_TICKS))
-            .observe(&mut guard, ObserverMode::Always);
-        if let Some(c) = columns.as_mut() {
-            run = run.observe(c, ObserverMode::Every(every));
-        }
-        match &staged {
-            Some(staged) => {
-                run_files::run_staged_with(staged, run, &run_files::RunFileOptions { mcap })
-                    .map_err(report_err)
-            }
-            None => run.execute().map_err(|e| scenario_err(e, &[])),
-        }
+            .observe(&mut guard, ObserverMode::Always)
     })?;
     if let Some((tick, err)) = failure.lock().expect("not poisoned").take() {
         // The staged folder is dropped: nothing appears.
         return Err(custom::raise(py, &name, tick, err));
     }
-    if interrupt.interrupted.get() {
-        return Err(PyKeyboardInterrupt::new_err("aift.run interrupted"));
-    }
-    if let Some(staged) = staged {
-        staged.commit().map_err(file_err)?;
-    }
-    let summary = serde_json::to_string(&run_files::summary_json(&setup, &result))
-        .expect("a summary serialises");
-    let names = columns
-        .as_ref()
-        .map(|c| c.names().to_vec())
-        .unwrap_or_default();
-    let bytes = columns_bytes(py, columns.as_ref())?;
-    Ok((summary, names, bytes))
+    outputs.finish(py, &setup, &result)
 }
 
 /// `aift replay`: `method` over a recorded log (a rosbag2 bag folder, a .mcap or a .csv) into
