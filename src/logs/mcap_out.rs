@@ -136,6 +136,8 @@ pub struct McapRecorder<W: Write + Seek> {
     events: Vec<Event>,
     next_event: usize,
     row: Vec<f64>,
+    enc: Vec<f64>,
+    tach: Vec<f64>,
     schema: TrajectorySchema,
     error: Option<mcap::McapError>,
     messages: u64,
@@ -196,6 +198,8 @@ impl<W: Write + Seek> McapRecorder<W> {
             events: events(setup),
             next_event: 0,
             row: Vec::new(),
+            enc: Vec::with_capacity(layout.n_joints()),
+            tach: Vec::with_capacity(layout.n_joints()),
             schema: TrajectorySchema::new(&layout),
             error: None,
             messages: 0,
@@ -261,8 +265,13 @@ impl<W: Write + Seek> Observer for McapRecorder<W> {
         let n = r.q.len();
         let layout = r.layout;
         let reading = |c: usize| r.readings.values[c].unwrap_or(f64::NAN);
-        let enc: Vec<f64> = (0..n).map(reading).collect();
-        let tach: Vec<f64> = (n..2 * n).map(reading).collect();
+        // Reused buffers: no allocation per tick.
+        let mut enc = std::mem::take(&mut self.enc);
+        let mut tach = std::mem::take(&mut self.tach);
+        enc.clear();
+        enc.extend((0..n).map(reading));
+        tach.clear();
+        tach.extend((n..2 * n).map(reading));
         let names = std::mem::take(&mut self.joint_names);
         msg::joint_state(&mut self.cdr, t, &names, &enc, &tach, r.applied);
         self.put(0, t);
@@ -275,6 +284,8 @@ impl<W: Write + Seek> Observer for McapRecorder<W> {
         msg::joint_state(&mut self.cdr, t, &names, r.target, &[], &[]);
         self.put(4, t);
         self.joint_names = names;
+        self.enc = enc;
+        self.tach = tach;
         let cam = layout.group_range(crate::sensors::SensorGroup::Camera);
         let mut p = [0.0; 3];
         for (k, c) in cam.enumerate() {
