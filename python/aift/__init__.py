@@ -202,33 +202,42 @@ def _methods(methods):
     return list(methods)
 
 
+def _split_methods(methods):
+    """(built-in names or None, Python methods) from a list that may hold both."""
+    if methods is None:
+        return None, []
+    listed = [methods] if isinstance(methods, str) else list(methods)
+    custom = [m for m in listed if not isinstance(m, str)]
+    named = [m for m in listed if isinstance(m, str)]
+    # Names only, or names beside Python methods; Python methods alone: no built-in one.
+    return (_methods(",".join(named)) if named else ([] if not custom else None)), custom
+
+
 def table(scenario=None, methods=None, seeds: int = 20, *,
           out=None, force: bool = False, calib=None) -> Rows:
     """Every method (or ``methods``) over ``seeds`` seeds from the scenario's: table.json's
     document and its rows (one per method). ``methods`` may hold methods written in Python
     beside the names, as classes (or functions returning a new method object): every run gets
     its own instance (docs/python.md, "Bring your own method")."""
-    names, custom = None, []
-    if methods is not None:
-        listed = [methods] if isinstance(methods, str) else list(methods)
-        custom = [m for m in listed if not isinstance(m, str)]
-        named = [m for m in listed if isinstance(m, str)]
-        # Names only, or names beside Python methods; Python methods alone: no built-in one.
-        names = _methods(",".join(named)) if named else ([] if not custom else None)
+    names, custom = _split_methods(methods)
     doc = _aift.run_table(_scenario(scenario), names, seeds,
                           _path(out), force, _path(calib), custom)
     return Rows(json.loads(doc), "rows")
 
 
-def campaign(path=None, *, seeds: Optional[int] = None, methods: Optional[Sequence[str]] = None,
+def campaign(path=None, *, seeds: Optional[int] = None, methods=None,
              set: Iterable[str] = (), shard: Optional[str] = None, out=None, force: bool = False,
              fresh: bool = False) -> Rows:
     """Runs a campaign file (default: the bundled one): campaign.json's document, with its
-    per-cell rows (``doc["cells"]``) as rows. With ``out``, each finished job is journaled beside
-    the folder: an interrupted call is resumed by calling again with the same arguments
-    (``fresh=True`` starts from nothing)."""
-    doc = json.loads(_aift.run_campaign(_path(path), seeds, _methods(methods),
-                                        list(set), shard, _path(out), force, fresh))
+    per-cell rows (``doc["cells"]``) as rows. ``methods`` may hold methods written in Python
+    beside the names, as classes (one instance per run, as in ``table``): they run in every cell
+    and reaching task after the built-in ones, under their names in every table, and
+    ``aift compare``/``aift merge``/``aift report`` read them from the records. With ``out``,
+    each finished job is journaled beside the folder: an interrupted call is resumed by calling
+    again with the same arguments (``fresh=True`` starts from nothing)."""
+    names, custom = _split_methods(methods)
+    doc = json.loads(_aift.run_campaign(_path(path), seeds, names,
+                                        list(set), shard, _path(out), force, fresh, custom))
     return Rows(doc, "cells")
 
 

@@ -10,7 +10,15 @@ returning (mu, mu_p, precisions).
     python python/examples/numpy_ekf.py [SCENARIO]
 
 runs it beside the built-in `ekf-gate` on the scenario (default: the embedded one, an encoder
-freezing at 8 s) for three seeds and prints both methods' numbers.
+freezing at 8 s) for three seeds and prints both methods' numbers;
+
+    python python/examples/numpy_ekf.py --campaign [CAMPAIGN] [--out DIR]
+
+runs both on a campaign (default: small_campaign.toml beside this file: two arms, encoder and
+tachometer faults, a healthy cell, three seeds) and prints where their verdicts differ.
+
+Its acceleration noise defaults to aift's `belief.acceleration_bound` (200 rad/s^2), the
+acceleration the built-in filters' constant-velocity model treats as one standard deviation.
 
 The precisions it returns are its verdict on each channel: the nominal precision for a reading it
 used, 0 for one its gate left out this tick; the camera, which it does not model, keeps its
@@ -18,6 +26,7 @@ nominal precision (no verdict is not a failure).
 """
 
 import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -27,7 +36,7 @@ import aift
 class NumpyKalman:
     name = "numpy-kf"
 
-    def __init__(self, accel_sigma=50.0, gate=25.0):
+    def __init__(self, accel_sigma=200.0, gate=25.0):
         self.accel_sigma = accel_sigma
         self.gate = gate
 
@@ -65,8 +74,38 @@ class NumpyKalman:
         return self.x[:, 0], self.x[:, 1], used
 
 
+SMALL_CAMPAIGN = Path(__file__).resolve().parent / "small_campaign.toml"
+
+
+def verdicts(campaign_doc, a, b):
+    """Per cell: (arm, label, a's cell summary, b's)."""
+    out = []
+    for cell in campaign_doc["cells"]:
+        by = {r["method"]: r for r in cell["results"]}
+        out.append((cell["arm"], cell["label"], by[a], by[b]))
+    return out
+
+
+def campaign(path, out):
+    rows = aift.campaign(path, methods=["ekf-gate", NumpyKalman], out=out, force=out is not None)
+    cells = verdicts(rows.doc, "ekf-gate", NumpyKalman.name)
+    same = sum(a["verdict"] == b["verdict"] for _, _, a, b in cells)
+    print(f"verdicts agree in {same} of {len(cells)} cells")
+    for arm, label, a, b in cells:
+        if a["verdict"] != b["verdict"]:
+            print(f"  {arm} {label}: ekf-gate {a['verdict']}, {NumpyKalman.name} {b['verdict']}")
+
+
 def main():
-    scenario = sys.argv[1] if len(sys.argv) > 1 else None
+    args = sys.argv[1:]
+    if args[:1] == ["--campaign"]:
+        rest = args[1:]
+        out = None
+        if "--out" in rest:
+            i = rest.index("--out")
+            out, rest = rest[i + 1], rest[:i] + rest[i + 2:]
+        return campaign(rest[0] if rest else SMALL_CAMPAIGN, out)
+    scenario = args[0] if args else None
     for seed in (1, 2, 3):
         for method in (NumpyKalman, "ekf-gate"):
             r = aift.run(scenario, method, seed, trajectory=False)

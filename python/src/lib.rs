@@ -631,8 +631,119 @@ fn read_summary(dir: &Path) -> PyResult<String> {
     .map_err(file_err)
 }
 
-/// Builds a method's parts for a seed (a table's method written in Python).
-type PartsBuilder<'a> = dyn Fn(u64) -> Result<MethodParts, ScenarioError> + Sync + 'a;
+/// Methods written in Python given to a table or a campaign: classes (or functions returning a
+/// new method object), one instance per run, built from any worker thread with the GIL taken for
+/// the call; each run's failure is kept and the first (in the order of method, place, seed) is
+/// raised after all runs.
+struct PyFactories {
+    factories: Vec<(String, Py<PyAny>)>,
+    /// Each run's failure slot, by (method, where (campaign cell), seed).
+    failures: Mutex<Vec<(String, String, u64, custom::Failure)>>,
+}
+
+impl PyFactories {
+    fn new(custom: &[Bound<'_, PyAny>], what: &str) -> PyResult<Self> {
+        let mut factories = Vec::with_capacity(custom.len());
+        for f in custom {
+            if !f.is_callable() {
+                return Err(bad(format!(
+                    "a method written in Python in a {what} must be a class (or a function \
+                     returning a new method object): each run gets its own instance; got {}",
+                    f.repr()?
+                )));
+            }
+            let name = custom::method_name(f)?;
+            if let Err(e) = aift::scenario::method::check_external_name(&name) {
+                return Err(bad(e));
+            }
+            if Method::parse(&name).is_some() || factories.iter().any(|(n, _)| *n == name) {
+                return Err(bad(format!(
+                    "method name {name:?} is taken (a built-in method's, or another given \
+                     method's): set a `name` attribute on the class"
+                )));
+            }
+            factories.push((name, f.clone().unbind()));
+        }
+        Ok(Self {
+            factories,
+            failures: Mutex::new(Vec::new()),
+        })
+    }
+
+    fn names(&self) -> Vec<String> {
+        self.factories.iter().map(|(n, _)| n.clone()).collect()
+    }
+
+    /// Builds method `i`'s parts for a run; `place` says where the run is (a campaign cell).
+    fn build(
+        &self,
+        i: usize,
+        setup: &RunSetup,
+        seed: u64,
+        place: String,
+    ) -> Result<MethodParts, ScenarioError> {
+        let (name, factory) = &self.factories[i];
+        let failure: custom::Failure = Default::default();
+        self.failures.lock().expect("not poisoned").push((
+            name.clone(),
+            place,
+            seed,
+            failure.clone(),
+        ));
+        Python::attach(|py| {
+            let obj = factory.bind(py).call0()?;
+            custom::reset(
+                &obj,
+                &setup.layout,
+                setup.scenario().dt,
+                &setup.nominal_precisions(),
+                seed,
+            )?;
+            custom::build_parts(&obj, name, setup, seed, &failure)
+        })
+        .map_err(|e| {
+            let message = Python::attach(|py| e.value(py).to_string());
+            custom::fail(&failure, 0, e);
+            ScenarioError::Invalid {
+                path: setup.loaded.path.clone(),
+                field: "methods".into(),
+                message: format!("method {name:?}: {message}"),
+            }
+        })
+    }
+
+    /// Whether a run of a Python method has failed (scans every run's slot: called once per job
+    /// or two, it costs a lock per run so far).
+    fn any_failed(&self) -> bool {
+        self.failures
+            .lock()
+            .expect("not poisoned")
+            .iter()
+            .any(|(.., slot)| slot.lock().expect("not poisoned").is_some())
+    }
+
+    /// Raises the first failure of a Python method, if one failed.
+    fn raise_first(self, py: Python<'_>) -> PyResult<()> {
+        let mut failures = self.failures.into_inner().expect("not poisoned");
+        failures.sort_by(|a, b| (&a.0, &a.1, a.2).cmp(&(&b.0, &b.1, b.2)));
+        for (name, place, seed, slot) in failures {
+            if let Some((tick, err)) = slot.lock().expect("not poisoned").take() {
+                let place = if place.is_empty() {
+                    String::new()
+                } else {
+                    format!(", {place}")
+                };
+                return Err(custom::raise(
+                    py,
+                    &format!("{name}{place}, seed {seed}"),
+                    tick,
+                    err,
+                ));
+            }
+        }
+        Ok(())
+    }
+}
 
 /// Every method over seeds `seed .. seed + seeds`; returns table.json's text. `out` writes the
 /// table folder.
@@ -656,18 +767,7 @@ fn run_table(
         _ => parse_methods(methods)?,
     };
     // Methods written in Python: factories (classes), one instance per run.
-    let mut factories = Vec::with_capacity(custom.len());
-    for f in &custom {
-        if !f.is_callable() {
-            return Err(bad(format!(
-                "a method written in Python in a table must be a class (or a function returning \
-                 a new method object): each run gets its own instance; got {}",
-                f.repr()?
-            )));
-        }
-        let name = custom::method_name(f)?;
-        factories.push((name, f.clone().unbind()));
-    }
+    let factories = PyFactories::new(&custom, "table")?;
     if seeds == 0 || seeds > MAX_SEEDS {
         return Err(bad(format!("seeds must be in 1..={MAX_SEEDS}")));
     }
@@ -681,49 +781,19 @@ fn run_table(
         None => None,
     };
     let cal = calibration(py, &setup, &methods, calib.as_deref())?;
-    // Each run's failure slot, by (method, seed): the first failure is raised after the table.
-    let failures: Mutex<Vec<(String, u64, custom::Failure)>> = Mutex::new(Vec::new());
-    let builders: Vec<Box<PartsBuilder<'_>>> = factories
-        .iter()
-        .map(|(name, factory)| {
-            let setup = &setup;
-            let failures = &failures;
-            Box::new(move |seed: u64| {
-                let failure: custom::Failure = Default::default();
-                failures
-                    .lock()
-                    .expect("not poisoned")
-                    .push((name.clone(), seed, failure.clone()));
-                Python::attach(|py| {
-                    let obj = factory.bind(py).call0()?;
-                    custom::reset(
-                        &obj,
-                        &setup.layout,
-                        setup.scenario().dt,
-                        &setup.nominal_precisions(),
-                        seed,
-                    )?;
-                    custom::build_parts(&obj, name, setup, seed, &failure)
-                })
-                .map_err(|e| {
-                    let message = Python::attach(|py| e.value(py).to_string());
-                    custom::fail(&failure, 0, e);
-                    ScenarioError::Invalid {
-                        path: setup.loaded.path.clone(),
-                        field: "methods".into(),
-                        message: format!("method {name:?}: {message}"),
-                    }
-                })
-            }) as Box<PartsBuilder<'_>>
+    let builders: Vec<_> = (0..factories.factories.len())
+        .map(|i| {
+            let factories = &factories;
+            move |setup: &RunSetup, seed: u64, _: &str| {
+                factories.build(i, setup, seed, String::new())
+            }
         })
         .collect();
     let external: Vec<table::ExternalMethod<'_>> = factories
-        .iter()
+        .names()
+        .into_iter()
         .zip(&builders)
-        .map(|((name, _), build)| table::ExternalMethod {
-            name: name.clone(),
-            build: build.as_ref(),
-        })
+        .map(|(name, build)| table::ExternalMethod::new(name, build))
         .collect();
     let result = interruptible(py, || {
         table::run_table_with(
@@ -737,18 +807,7 @@ fn run_table(
     })?;
     drop(external);
     drop(builders);
-    let mut failures = failures.into_inner().expect("not poisoned");
-    failures.sort_by(|a, b| (&a.0, a.1).cmp(&(&b.0, b.1)));
-    for (name, seed, slot) in failures {
-        if let Some((tick, err)) = slot.lock().expect("not poisoned").take() {
-            return Err(custom::raise(
-                py,
-                &format!("{name}, seed {seed}"),
-                tick,
-                err,
-            ));
-        }
-    }
+    factories.raise_first(py)?;
     let result = result.map_err(|e| scenario_err(e, &[]))?;
     if let Some(staged) = staged {
         table_files::write_table(staged.path(), &setup, &result).map_err(report_err)?;
@@ -780,7 +839,7 @@ fn parse_methods(methods: Option<Vec<String>>) -> PyResult<Vec<Method>> {
 /// job beside it as `aift campaign` does: an interrupted call (Ctrl-C, a killed process) is
 /// resumed by calling it again with the same arguments; `fresh` discards such a journal.
 #[pyfunction]
-#[pyo3(signature = (path = None, seeds = None, methods = None, set = Vec::new(), shard = None, out = None, force = false, fresh = false))]
+#[pyo3(signature = (path = None, seeds = None, methods = None, set = Vec::new(), shard = None, out = None, force = false, fresh = false, custom = Vec::new()))]
 #[allow(clippy::too_many_arguments)]
 fn run_campaign(
     py: Python<'_>,
@@ -792,6 +851,7 @@ fn run_campaign(
     out: Option<PathBuf>,
     force: bool,
     fresh: bool,
+    custom: Vec<Bound<'_, PyAny>>,
 ) -> PyResult<String> {
     let path = match path {
         Some(p) => p,
@@ -819,9 +879,21 @@ fn run_campaign(
     if let Some(s) = seeds {
         config.seeds = s;
     }
-    if methods.is_some() {
-        config.methods = Some(parse_methods(methods)?);
+    // Methods written in Python: named in the campaign (its records and tables), built per run.
+    let factories = PyFactories::new(&custom, "campaign")?;
+    match (methods.is_some(), custom.is_empty()) {
+        (true, _) => config.methods = Some(parse_methods(methods)?),
+        // Python methods alone: no built-in one.
+        (false, false) => config.methods = Some(Vec::new()),
+        (false, true) => {}
     }
+    if !config.external_methods.is_empty() {
+        return Err(bad(format!(
+            "{}: external_methods is set by aift.campaign(methods=[...]), not in the file",
+            path.display()
+        )));
+    }
+    config.external_methods = factories.names();
     let staged = match &out {
         Some(dir) => Some(Staged::begin(dir, OutputKind::Folder, force).map_err(file_err)?),
         None => None,
@@ -841,16 +913,38 @@ fn run_campaign(
             ),
             None => None,
         };
-        let records = campaign::run_campaign_journaled(
+        let failed = || factories.any_failed();
+        let builders: Vec<_> = (0..factories.factories.len())
+            .map(|i| {
+                let factories = &factories;
+                move |setup: &RunSetup, seed: u64, place: &str| {
+                    factories.build(i, setup, seed, place.to_string())
+                }
+            })
+            .collect();
+        let external: Vec<table::ExternalMethod<'_>> = factories
+            .names()
+            .into_iter()
+            .zip(&builders)
+            .map(|(name, build)| table::ExternalMethod {
+                name,
+                build,
+                failed: Some(&failed),
+            })
+            .collect();
+        let records = campaign::run_campaign_with(
             &campaign,
             shard,
             cache.as_deref(),
             &|_, _| {},
             journal.as_ref(),
-        )?;
+            &external,
+        );
         Ok::<_, ScenarioError>((campaign, records, journal))
     })?
     .map_err(|e| scenario_err(e, &[]))?;
+    factories.raise_first(py)?;
+    let records = records.map_err(|e| scenario_err(e, &[]))?;
     if let Some(staged) = staged {
         if shard == Shard::WHOLE {
             campaign_files::write_campaign(staged.path(), &campaign, &records)

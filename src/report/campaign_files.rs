@@ -12,11 +12,11 @@ use plotters::prelude::*;
 use serde_json::json;
 
 use super::{ReportError, write_atomic};
-use crate::scenario::Method;
 use crate::scenario::campaign::{
     Better, CAMPAIGN_FORMAT, Campaign, CampaignRecords, CellSummary, MethodSummary, PairComparison,
     ReachingProtocol, Verdict, compare, compare_all, summarise,
 };
+use crate::scenario::method::MethodId;
 
 /// The records file of a run or shard.
 pub const RECORDS: &str = "records.json";
@@ -252,19 +252,19 @@ fn comparisons_markdown(campaign: &Campaign, pairs: &[PairComparison]) -> String
     out += "\n|---|";
     out += &"---|".repeat(m.len());
     out += "\n";
-    for &a in m {
+    for a in m {
         let _ = write!(out, "| {a} |");
-        for &b in m {
+        for b in m {
             if a == b {
                 out += " - |";
                 continue;
             }
             let (wins, of) = pairs
                 .iter()
-                .filter(|p| (p.a, p.b) == (a, b) || (p.a, p.b) == (b, a))
+                .filter(|p| (&p.a, &p.b) == (a, b) || (&p.a, &p.b) == (b, a))
                 .fold((0, 0), |(w, n), p| {
-                    let a_wins =
-                        (p.a == a && p.better == Better::A) || (p.b == a && p.better == Better::B);
+                    let a_wins = (p.a == *a && p.better == Better::A)
+                        || (p.b == *a && p.better == Better::B);
                     (w + usize::from(a_wins), n + 1)
                 });
             let _ = write!(out, " {wins}/{of} |");
@@ -388,14 +388,14 @@ fn markdown(
 fn reaching_rows(
     campaign: &Campaign,
     records: &CampaignRecords,
-) -> Vec<(usize, Method, [f64; 5], usize, usize)> {
+) -> Vec<(usize, MethodId, [f64; 5], usize, usize)> {
     let mut rows = Vec::new();
     for a in 0..campaign.config.arms.len() {
-        for &m in &campaign.methods {
+        for m in &campaign.methods {
             let rs: Vec<_> = records
                 .reaching
                 .iter()
-                .filter(|r| r.arm == a && r.method == m)
+                .filter(|r| r.arm == a && r.method == *m)
                 .collect();
             if rs.is_empty() {
                 continue;
@@ -414,7 +414,7 @@ fn reaching_rows(
                 .map_or(0.0, |rc| rc.duration);
             rows.push((
                 a,
-                m,
+                m.clone(),
                 [
                     rs.iter().map(|r| r.belief_rmse).sum::<f64>() / n,
                     rs.iter().map(|r| r.overshoot).sum::<f64>() / n,

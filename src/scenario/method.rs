@@ -205,6 +205,137 @@ impl std::str::FromStr for Method {
     }
 }
 
+/// Which method a campaign run (or table row) belongs to: a built-in [`Method`], or one the
+/// caller supplied (a Python class, a Rust [`ExternalMethod`]) known by its name. Written in
+/// files as the name alone; a name that is no built-in method's reads back as external.
+#[derive(Clone, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum MethodId {
+    Builtin(Method),
+    External(String),
+}
+
+impl MethodId {
+    pub fn name(&self) -> &str {
+        match self {
+            Self::Builtin(m) => m.name(),
+            Self::External(name) => name,
+        }
+    }
+
+    /// The built-in method (None for an external one).
+    pub fn builtin(&self) -> Option<Method> {
+        match self {
+            Self::Builtin(m) => Some(*m),
+            Self::External(_) => None,
+        }
+    }
+
+    /// Whether the method needs the calibrated detector (external methods bring their own).
+    pub fn needs_detector(&self) -> bool {
+        self.builtin().is_some_and(Method::needs_detector)
+    }
+
+    /// The built-in method of that name, else an external one.
+    pub fn from_name(name: &str) -> Self {
+        Method::parse(name).map_or_else(|| Self::External(name.to_string()), Self::Builtin)
+    }
+}
+
+impl From<Method> for MethodId {
+    fn from(m: Method) -> Self {
+        Self::Builtin(m)
+    }
+}
+
+impl PartialEq<Method> for MethodId {
+    fn eq(&self, other: &Method) -> bool {
+        *self == Self::Builtin(*other)
+    }
+}
+
+impl fmt::Display for MethodId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl Serialize for MethodId {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(self.name())
+    }
+}
+
+impl<'de> Deserialize<'de> for MethodId {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let name = String::deserialize(d)?;
+        check_external_name(&name).map_err(serde::de::Error::custom)?;
+        Ok(Self::from_name(&name))
+    }
+}
+
+/// Longest name of a method the caller supplies.
+pub const MAX_EXTERNAL_NAME: usize = 64;
+
+/// Whether `name` can name a method the caller supplies (a built-in name is checked apart):
+/// 1 to 64 characters, letters, digits, `-`, `_`, `.` (it becomes a column, a key and a label).
+pub fn check_external_name(name: &str) -> Result<(), String> {
+    if name.is_empty() || name.chars().count() > MAX_EXTERNAL_NAME {
+        return Err(format!(
+            "method name {name:?} must have 1 to {MAX_EXTERNAL_NAME} characters"
+        ));
+    }
+    if let Some(c) = name
+        .chars()
+        .find(|c| !(c.is_alphanumeric() || matches!(c, '-' | '_' | '.')))
+    {
+        return Err(format!(
+            "method name {name:?} has {c:?}: use letters, digits, '-', '_' or '.'"
+        ));
+    }
+    Ok(())
+}
+
+/// A method of the caller's (defined outside the library), run beside the built-in ones by
+/// [`crate::scenario::table::run_table_with`] and
+/// [`crate::scenario::campaign::run_campaign_with`]: `build(setup, seed, place)` makes its parts
+/// for one run (a fresh estimator and precision method each time); `place` says where the run
+/// is, for messages (a campaign's arm and cell, `""` in a table).
+pub struct ExternalMethod<'a> {
+    pub name: String,
+    pub build: &'a (dyn Fn(&RunSetup, u64, &str) -> Result<MethodParts, ScenarioError> + Sync),
+    /// Whether one of its runs failed in a way the parts cannot return (a Python exception in
+    /// `step`: the run goes on to its end with non-finite updates). A campaign asks before each
+    /// job and before journaling each run: once true, no run is journaled or started and the
+    /// campaign returns an error (so that a resumed campaign never keeps a failed run).
+    pub failed: Option<&'a (dyn Fn() -> bool + Sync)>,
+}
+
+impl<'a> ExternalMethod<'a> {
+    /// A method whose runs fail only by `build`'s errors.
+    pub fn new(
+        name: impl Into<String>,
+        build: &'a (dyn Fn(&RunSetup, u64, &str) -> Result<MethodParts, ScenarioError> + Sync),
+    ) -> Self {
+        Self {
+            name: name.into(),
+            build,
+            failed: None,
+        }
+    }
+
+    fn has_failed(&self) -> bool {
+        self.failed.is_some_and(|f| f())
+    }
+}
+
+/// Whether one of `external`'s runs failed (see [`ExternalMethod::failed`]); its name.
+pub fn failed_external<'e>(external: &'e [ExternalMethod<'_>]) -> Option<&'e str> {
+    external
+        .iter()
+        .find(|e| e.has_failed())
+        .map(|e| e.name.as_str())
+}
+
 /// What building a method needs.
 pub struct MethodContext<'a> {
     pub setup: &'a RunSetup,
@@ -346,4 +477,26 @@ fn detector(ctx: &MethodContext<'_>) -> Result<Detector, ScenarioError> {
         });
     }
     Ok(Detector::new(cal, &sc.detector, ctx.layout))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn method_ids_are_written_as_their_names_and_read_back() {
+        for m in Method::ALL {
+            let id = MethodId::from(m);
+            let text = serde_json::to_string(&id).unwrap();
+            assert_eq!(text, serde_json::to_string(&m).unwrap());
+            assert_eq!(serde_json::from_str::<MethodId>(&text).unwrap(), id);
+        }
+        let mine: MethodId = serde_json::from_str("\"numpy-kf\"").unwrap();
+        assert_eq!(mine, MethodId::External("numpy-kf".into()));
+        assert!(!mine.needs_detector() && mine.builtin().is_none());
+        assert!(serde_json::from_str::<MethodId>("\"a b\"").is_err());
+        assert!(serde_json::from_str::<MethodId>("\"\"").is_err());
+        assert!(check_external_name(&"x".repeat(65)).is_err());
+        assert!(check_external_name("my_kf.v2-1").is_ok());
+    }
 }

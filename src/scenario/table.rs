@@ -3,7 +3,7 @@
 
 use rayon::prelude::*;
 
-use super::method::MethodParts;
+pub use super::method::ExternalMethod;
 use super::runner::Run;
 use super::{Method, RunResult, RunSetup, ScenarioError};
 use crate::precision::Calibration;
@@ -55,14 +55,6 @@ fn mean_std(values: &[f64]) -> (f64, f64) {
     (mean, var.sqrt())
 }
 
-/// A method of the caller's in a table (a method written in Python, say): its name and a
-/// builder of its estimator and precision method for a seed, called once per run from any
-/// worker thread.
-pub struct ExternalMethod<'a> {
-    pub name: String,
-    pub build: &'a (dyn Fn(u64) -> Result<MethodParts, ScenarioError> + Sync),
-}
-
 /// Runs every method in `methods` for every seed in `seeds`; `progress` is called after each run.
 ///
 /// ```no_run
@@ -100,6 +92,18 @@ pub fn run_table_with(
     }
     let mut names: Vec<String> = methods.iter().map(|m| m.name().to_string()).collect();
     for e in external {
+        let bad = |message: String| ScenarioError::Invalid {
+            path: setup.loaded.path.clone(),
+            field: "methods".into(),
+            message,
+        };
+        super::method::check_external_name(&e.name).map_err(bad)?;
+        if Method::parse(&e.name).is_some() {
+            return Err(bad(format!(
+                "{:?} is a built-in method's name: give the method another",
+                e.name
+            )));
+        }
         if names.contains(&e.name) {
             return Err(ScenarioError::Invalid {
                 path: setup.loaded.path.clone(),
@@ -123,7 +127,7 @@ pub fn run_table_with(
                     .execute(),
                 None => {
                     let e = &external[column - methods.len()];
-                    (e.build)(seed).and_then(|parts| {
+                    (e.build)(setup, seed, "").and_then(|parts| {
                         Run::with_parts(setup, &e.name, parts).seed(seed).execute()
                     })
                 }

@@ -168,6 +168,14 @@ fn campaign(args: CampaignArgs) -> Result<(), Failure> {
     if !args.methods.is_empty() {
         config.methods = Some(parse_methods(&args.methods)?);
     }
+    if let Some(name) = config.external_methods.first() {
+        return Err(bad_input(anyhow!(
+            "{}: `external_methods` names {name:?}, a method of the caller's that the command \
+             line cannot run: run the campaign from Python (aift.campaign(methods=[...])) or \
+             Rust (campaign::run_campaign_with)",
+            path.display()
+        )));
+    }
     let dir = args
         .out
         .clone()
@@ -410,11 +418,8 @@ fn compare(args: CompareArgs) -> Result<(), Failure> {
     }
     let records = report::campaign_files::read_records(&args.dir).map_err(report_failure)?;
     let campaign = Campaign::plan(records.config.clone());
-    let method = |name: &str| -> Result<Method, Failure> {
-        let m = name
-            .parse::<Method>()
-            .map_err(|e| bad_input(anyhow!("method: {e}")))?;
-        if !campaign.methods.contains(&m) {
+    let method = |name: &str| -> Result<&aift::scenario::method::MethodId, Failure> {
+        let Some(m) = campaign.methods.iter().find(|m| m.name() == name) else {
             return Err(bad_input(anyhow::anyhow!(
                 "method {name}: not in campaign {} ({}; its methods: {})",
                 records.campaign,
@@ -426,7 +431,7 @@ fn compare(args: CompareArgs) -> Result<(), Failure> {
                     .collect::<Vec<_>>()
                     .join(", ")
             )));
-        }
+        };
         Ok(m)
     };
     let (a, b) = (method(&args.a)?, method(&args.b)?);

@@ -14,7 +14,7 @@
 use std::collections::BTreeMap;
 
 use super::{Campaign, CampaignRun};
-use crate::scenario::Method;
+use crate::scenario::method::MethodId;
 
 /// The significance level of the comparisons a campaign writes (two-sided).
 pub const ALPHA: f64 = 0.05;
@@ -160,8 +160,8 @@ impl Better {
 #[derive(Clone, Debug, PartialEq)]
 pub struct PairComparison {
     pub cell: usize,
-    pub a: Method,
-    pub b: Method,
+    pub a: MethodId,
+    pub b: MethodId,
     /// Seeds both methods ran in the cell.
     pub seeds: usize,
     /// Median over the seeds of log10(MSE_a / MSE_b) (negative: a's error is smaller; +-inf when
@@ -174,7 +174,7 @@ pub struct PairComparison {
 
 impl PairComparison {
     /// The method the comparison favours, or `neither`.
-    pub fn better_name(&self) -> &'static str {
+    pub fn better_name(&self) -> &str {
         match self.better {
             Better::A => self.a.name(),
             Better::B => self.b.name(),
@@ -229,19 +229,20 @@ fn median(values: &mut [f64]) -> f64 {
 pub fn compare_pair(
     campaign: &Campaign,
     runs: &[CampaignRun],
-    a: Method,
-    b: Method,
+    a: &MethodId,
+    b: &MethodId,
     alpha: f64,
 ) -> Vec<PairComparison> {
-    let mut by: BTreeMap<(usize, Method), BTreeMap<u64, f64>> = BTreeMap::new();
-    for r in runs.iter().filter(|r| r.method == a || r.method == b) {
-        by.entry((r.cell, r.method))
+    // By (cell, whether b's).
+    let mut by: BTreeMap<(usize, bool), BTreeMap<u64, f64>> = BTreeMap::new();
+    for r in runs.iter().filter(|r| r.method == *a || r.method == *b) {
+        by.entry((r.cell, r.method == *b))
             .or_default()
             .insert(r.seed, r.mse_post);
     }
     let mut out = Vec::new();
     for cell in 0..campaign.cells.len() {
-        let (Some(ra), Some(rb)) = (by.get(&(cell, a)), by.get(&(cell, b))) else {
+        let (Some(ra), Some(rb)) = (by.get(&(cell, false)), by.get(&(cell, true))) else {
             continue;
         };
         let mut d: Vec<f64> = ra
@@ -263,8 +264,8 @@ pub fn compare_pair(
         };
         out.push(PairComparison {
             cell,
-            a,
-            b,
+            a: a.clone(),
+            b: b.clone(),
             seeds: d.len(),
             median_log10_ratio: median(&mut d),
             test,
@@ -280,7 +281,7 @@ pub fn compare_all(campaign: &Campaign, runs: &[CampaignRun], alpha: f64) -> Vec
     let mut out = Vec::new();
     for i in 0..m.len() {
         for j in i + 1..m.len() {
-            out.extend(compare_pair(campaign, runs, m[i], m[j], alpha));
+            out.extend(compare_pair(campaign, runs, &m[i], &m[j], alpha));
         }
     }
     out

@@ -407,9 +407,15 @@ pub struct CampaignConfig {
     /// (an evaluation campaign's seeds kept apart from the development campaign's 1, 2, ...).
     #[serde(default = "one", skip_serializing_if = "is_one")]
     pub first_seed: u64,
-    /// Methods (default: every method).
+    /// Methods (default: every method; none when `external_methods` lists some).
     #[serde(default)]
     pub methods: Option<Vec<Method>>,
+    /// Methods the caller supplies by name (Python classes given to `aift.campaign`, Rust
+    /// [`crate::scenario::method::ExternalMethod`]s), run after `methods`. Not written by hand:
+    /// the library sets it, and the records keep it so that `aift merge` and `aift report` show
+    /// those methods; `aift campaign` cannot run a file that lists any.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub external_methods: Vec<String>,
     #[serde(default)]
     pub verdict: VerdictConfig,
     #[serde(default)]

@@ -313,9 +313,9 @@ fn read_entries(
                 (Some(r), None) => {
                     j < cell_jobs
                         && r.job == j
-                        && campaign
-                            .job(j)
-                            .is_some_and(|(c, m, s)| r.cell == c && r.method == m && s < usize::MAX)
+                        && campaign.job(j).is_some_and(|(c, m, s)| {
+                            r.cell == c && r.method == *m && s < usize::MAX
+                        })
                 }
                 (None, Some(rs)) => j >= cell_jobs && rs.iter().all(|r| r.job == j),
                 _ => false,

@@ -62,7 +62,7 @@ pub fn check_records(r: &CampaignRecords) -> Result<(), String> {
         }
         let (cell, method, seed_index) = plan.job(j).expect("j < cell_jobs");
         let seed = super::run::run_seed(&r.config, seed_index);
-        if (run.cell, run.method, run.seed) != (cell, method, seed) {
+        if (run.cell, &run.method, run.seed) != (cell, method, seed) {
             return Err(format!(
                 "the run of job {j} says cell {}, {}, seed {}; the job is cell {cell}, {method}, \
                  seed {seed}",
@@ -186,7 +186,7 @@ pub fn merge(shards: &[CampaignRecords]) -> Result<CampaignRecords, String> {
         .collect();
     // As an unsharded run lists them: by job, then in the campaign's order of methods.
     let methods = first.config.method_list();
-    let rank = |m: &crate::scenario::Method| methods.iter().position(|x| x == m);
+    let rank = |m: &crate::scenario::method::MethodId| methods.iter().position(|x| x == m);
     reaching.sort_by(|a, b| {
         a.job
             .cmp(&b.job)

@@ -26,6 +26,7 @@ mod summary;
 
 use std::path::{Path, PathBuf};
 
+use super::method::MethodId;
 use super::{LoadedScenario, Method, RunSetup, ScenarioError};
 use crate::fsio;
 
@@ -39,7 +40,8 @@ pub use journal::{JOURNAL_FORMAT, Journal, JournalMode, JournalStart, MAX_JOURNA
 pub use merge::{check_records, merge};
 pub use reaching::{ReachingRun, ReachingTask};
 pub use run::{
-    CampaignRecords, CampaignRun, Shard, Verdict, run_campaign, run_campaign_journaled, run_seed,
+    CampaignRecords, CampaignRun, Shard, Verdict, run_campaign, run_campaign_journaled,
+    run_campaign_with, run_seed,
 };
 pub use summary::{CellSummary, MethodSummary, summarise, worse_than_no_ft};
 
@@ -67,11 +69,16 @@ pub struct Campaign {
     pub path: PathBuf,
     pub arms: Vec<RunSetup>,
     pub cells: Vec<Cell>,
-    pub methods: Vec<Method>,
+    /// The methods it runs: the built-in ones (`methods`), then the caller's
+    /// (`external_methods`).
+    pub methods: Vec<MethodId>,
     pub fingerprint: String,
     /// The reaching targets read from `reaching.targets_file`, if it names one.
     pub reaching_targets: Option<Vec<Vec<f64>>>,
 }
+
+/// Most methods of the caller's in one campaign.
+pub const MAX_EXTERNAL_METHODS: usize = 64;
 
 /// The bundled default campaign, embedded.
 pub const DEFAULT_CAMPAIGN_NAME: &str = "default.toml";
@@ -171,7 +178,7 @@ impl Campaign {
             }
         }
         for (a, setup) in arms.iter().enumerate() {
-            for &m in &methods {
+            for m in methods.iter().filter_map(MethodId::builtin) {
                 setup.check_method(m).map_err(|e| {
                     invalid(
                         path,
@@ -242,22 +249,22 @@ impl Campaign {
     /// Every job in canonical order: (cell, method, seed index).
     /// Job `j`'s (cell, method, seed index): the inverse of [`Self::jobs`]'s order, for records
     /// checked without expanding the job list; `None` past the cells' jobs.
-    pub fn job(&self, j: usize) -> Option<(usize, Method, usize)> {
+    pub fn job(&self, j: usize) -> Option<(usize, &MethodId, usize)> {
         let seeds = self.config.seeds;
         let cell = j / (self.methods.len() * seeds).max(1);
         (cell < self.cells.len()).then(|| {
             (
                 cell,
-                self.methods[(j / seeds) % self.methods.len()],
+                &self.methods[(j / seeds) % self.methods.len()],
                 j % seeds,
             )
         })
     }
 
-    pub fn jobs(&self) -> Vec<(usize, Method, usize)> {
+    pub fn jobs(&self) -> Vec<(usize, &MethodId, usize)> {
         let mut jobs = Vec::new();
         for c in 0..self.cells.len() {
-            for &m in &self.methods {
+            for m in &self.methods {
                 for s in 0..self.config.seeds {
                     jobs.push((c, m, s));
                 }
@@ -268,21 +275,37 @@ impl Campaign {
 }
 
 impl CampaignConfig {
-    /// The methods it runs, in its order: `methods`, or every method when absent.
-    pub fn method_list(&self) -> Vec<Method> {
-        self.methods.clone().unwrap_or_else(|| Method::ALL.to_vec())
+    /// The methods it runs, in its order: `methods` (every built-in method when absent), then
+    /// `external_methods`.
+    pub fn method_list(&self) -> Vec<MethodId> {
+        let builtin = match (&self.methods, self.external_methods.is_empty()) {
+            (Some(m), _) => m.clone(),
+            (None, true) => Method::ALL.to_vec(),
+            // Only the caller's methods were asked for.
+            (None, false) => Vec::new(),
+        };
+        builtin
+            .into_iter()
+            .map(MethodId::Builtin)
+            .chain(
+                self.external_methods
+                    .iter()
+                    .cloned()
+                    .map(MethodId::External),
+            )
+            .collect()
     }
 
     /// Checks the campaign file's own fields and its grid's size, without loading any arm;
     /// returns the methods it runs. (`Campaign::load` does this first.)
-    pub fn check(&self, path: &Path) -> Result<Vec<Method>, ScenarioError> {
+    pub fn check(&self, path: &Path) -> Result<Vec<MethodId>, ScenarioError> {
         validate(self, path)
     }
 }
 
 /// Checks the campaign file's own fields (name, seeds, arms, verdict, onsets, methods, reaching);
 /// returns the methods it runs.
-fn validate(config: &CampaignConfig, path: &Path) -> Result<Vec<Method>, ScenarioError> {
+fn validate(config: &CampaignConfig, path: &Path) -> Result<Vec<MethodId>, ScenarioError> {
     let bad = |field: &str, message: String| invalid(path, field, message);
     if config.name.is_empty()
         || !config
@@ -323,18 +346,36 @@ fn validate(config: &CampaignConfig, path: &Path) -> Result<Vec<Method>, Scenari
     if !(o.moving.is_finite() && o.moving >= 0.0 && o.rest.is_finite() && o.rest >= 0.0) {
         return Err(bad("onsets", "times must be finite and >= 0".into()));
     }
-    let methods = match &config.methods {
-        Some(m) if m.is_empty() => return Err(bad("methods", "lists no method".into())),
-        Some(m) => {
-            for (i, a) in m.iter().enumerate() {
-                if m[..i].contains(a) {
-                    return Err(bad("methods", format!("{a} is listed twice")));
-                }
-            }
-            m.clone()
+    if let Some(m) = &config.methods {
+        if m.is_empty() && config.external_methods.is_empty() {
+            return Err(bad("methods", "lists no method".into()));
         }
-        None => config.method_list(),
-    };
+        for (i, a) in m.iter().enumerate() {
+            if m[..i].contains(a) {
+                return Err(bad("methods", format!("{a} is listed twice")));
+            }
+        }
+    }
+    let external = &config.external_methods;
+    if external.len() > MAX_EXTERNAL_METHODS {
+        return Err(bad(
+            "external_methods",
+            format!("{} methods; at most {MAX_EXTERNAL_METHODS}", external.len()),
+        ));
+    }
+    for (i, name) in external.iter().enumerate() {
+        super::method::check_external_name(name).map_err(|e| bad("external_methods", e))?;
+        if Method::parse(name).is_some() {
+            return Err(bad(
+                "external_methods",
+                format!("{name:?} is a built-in method's name: give the method another"),
+            ));
+        }
+        if external[..i].contains(name) {
+            return Err(bad("external_methods", format!("{name:?} is listed twice")));
+        }
+    }
+    let methods = config.method_list();
     check_grid(config, path, methods.len())?;
     if let Some(r) = &config.reaching {
         if r.tasks == 0
@@ -696,7 +737,7 @@ fn check_cells(
     path: &Path,
     arms: &[RunSetup],
     cells: &[Cell],
-    methods: &[Method],
+    methods: &[MethodId],
 ) -> Result<(), ScenarioError> {
     let bad = |field: &str, message: String| invalid(path, field, message);
     if cells.len() > MAX_CELLS {

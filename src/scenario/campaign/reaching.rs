@@ -8,9 +8,10 @@ use rand_distr::{Distribution, Uniform};
 use serde::{Deserialize, Serialize};
 
 use super::{Campaign, ReachingProtocol};
+use crate::scenario::ScenarioError;
 use crate::scenario::calibrate;
-use crate::scenario::runner::{Observer, ObserverMode, Run, TickRecord};
-use crate::scenario::{Method, ScenarioError};
+use crate::scenario::method::{ExternalMethod, MethodId};
+use crate::scenario::runner::{Observer, ObserverMode, TickRecord};
 
 /// One task of the reaching benchmark.
 #[derive(Clone, Debug, PartialEq)]
@@ -31,7 +32,7 @@ pub struct ReachingRun {
     pub job: usize,
     pub arm: usize,
     pub task: usize,
-    pub method: Method,
+    pub method: MethodId,
     /// How the run ended (`completed`, `diverged`, `chattering`, `stopped`): the measures of a
     /// run that did not complete describe only the ticks it ran.
     #[serde(default = "completed")]
@@ -187,6 +188,7 @@ pub(super) fn run_reaching(
     task: &ReachingTask,
     job: usize,
     cache: Option<&Path>,
+    external: &[ExternalMethod<'_>],
 ) -> Result<Vec<ReachingRun>, ScenarioError> {
     let rc = campaign
         .config
@@ -222,7 +224,7 @@ pub(super) fn run_reaching(
     };
     let n = start.len();
     let mut out = Vec::new();
-    for &m in &campaign.methods {
+    for m in &campaign.methods {
         let mut obs = ReachingObserver {
             start: start.clone(),
             target: task.target.clone(),
@@ -242,9 +244,12 @@ pub(super) fn run_reaching(
                 final_q: start.clone(),
             }),
         };
-        let r = Run::new(&setup, m)
-            .seed(1)
-            .calibration(calibration.as_ref())
+        let place = format!(
+            "arm {}, reaching task {}",
+            campaign.config.arms[task.arm].name,
+            task.task + 1
+        );
+        let r = super::run::begin_run(&setup, m, 1, calibration.as_ref(), external, &place)?
             .observe(&mut obs, ObserverMode::Always)
             .execute()?;
         let run = match &obs.authors {
@@ -252,7 +257,7 @@ pub(super) fn run_reaching(
                 job,
                 arm: task.arm,
                 task: task.task,
-                method: m,
+                method: m.clone(),
                 outcome: r.outcome.name().to_string(),
                 belief_rmse: (obs.sq / obs.count.max(1) as f64).sqrt(),
                 overshoot: obs.overshoot.max(0.0),
@@ -270,7 +275,7 @@ pub(super) fn run_reaching(
                     job,
                     arm: task.arm,
                     task: task.task,
-                    method: m,
+                    method: m.clone(),
                     outcome: r.outcome.name().to_string(),
                     belief_rmse: measures.belief_rmse,
                     overshoot: measures.overshoot,

@@ -11,9 +11,10 @@ use super::reaching::run_reaching;
 use super::{CAMPAIGN_FORMAT, Campaign, CampaignConfig, ReachingRun, VerdictConfig};
 use crate::precision::Calibration;
 use crate::scenario::calibrate;
+use crate::scenario::method::{ExternalMethod, MethodId};
 use crate::scenario::runner::{Observer, TickRecord};
 use crate::scenario::runner::{ObserverMode, Run};
-use crate::scenario::{Method, RunResult, RunSetup, ScenarioError};
+use crate::scenario::{RunResult, RunSetup, ScenarioError};
 
 /// How one run ended, as the campaign sees it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
@@ -42,7 +43,7 @@ impl Verdict {
 pub struct CampaignRun {
     pub job: usize,
     pub cell: usize,
-    pub method: Method,
+    pub method: MethodId,
     pub seed: u64,
     pub outcome: String,
     pub verdict: Verdict,
@@ -160,15 +161,72 @@ fn verdict_of(r: &RunResult, judged: f64, runaway: bool, v: &VerdictConfig) -> V
     }
 }
 
-/// Runs one job.
+/// A run of `method` (built in, or one of `external` by name) with `seed`; `place` names the
+/// run's arm and cell for an external method's messages.
+pub(super) fn begin_run<'a>(
+    setup: &'a RunSetup,
+    method: &MethodId,
+    seed: u64,
+    calibration: Option<&'a Calibration>,
+    external: &[ExternalMethod<'_>],
+    place: &str,
+) -> Result<Run<'a>, ScenarioError> {
+    let run = match method {
+        MethodId::Builtin(m) => Run::new(setup, *m).calibration(calibration),
+        MethodId::External(name) => {
+            let e = external
+                .iter()
+                .find(|e| e.name == *name)
+                .ok_or_else(|| missing_external(&setup.loaded.path, name))?;
+            Run::with_parts(setup, name, (e.build)(setup, seed, place)?)
+        }
+    };
+    Ok(run.seed(seed))
+}
+
+fn missing_external(path: &Path, name: &str) -> ScenarioError {
+    ScenarioError::Invalid {
+        path: path.to_path_buf(),
+        field: "external_methods".into(),
+        message: format!(
+            "{name:?} is a method of the caller's: run this campaign from the library (Rust \
+             `run_campaign_with`, Python `aift.campaign(methods=[...])`) with that method"
+        ),
+    }
+}
+
+/// Checks that `external` are exactly the campaign's `external_methods` (by name).
+fn check_externals(
+    campaign: &Campaign,
+    external: &[ExternalMethod<'_>],
+) -> Result<(), ScenarioError> {
+    let listed = &campaign.config.external_methods;
+    if let Some(name) = listed
+        .iter()
+        .find(|n| !external.iter().any(|e| e.name == **n))
+    {
+        return Err(missing_external(&campaign.path, name));
+    }
+    if let Some(e) = external.iter().find(|e| !listed.contains(&e.name)) {
+        return Err(ScenarioError::Invalid {
+            path: campaign.path.clone(),
+            field: "external_methods".into(),
+            message: format!(
+                "a method {:?} was given, but the campaign does not list it (it lists {:?})",
+                e.name, listed
+            ),
+        });
+    }
+    Ok(())
+}
+
+/// Runs one job: (job, cell, method, seed index).
 fn run_job(
     campaign: &Campaign,
     setup: &RunSetup,
-    job: usize,
-    cell_index: usize,
-    method: Method,
-    seed_index: usize,
+    (job, cell_index, method, seed_index): (usize, usize, &MethodId, usize),
     calibration: Option<&Calibration>,
+    external: &[ExternalMethod<'_>],
 ) -> Result<CampaignRun, ScenarioError> {
     let cell = &campaign.cells[cell_index];
     let sc = setup.scenario();
@@ -192,9 +250,11 @@ fn run_job(
         .chain(setup.actuator_faults.iter().map(|f| f.start_tick(dt)))
         .min();
     let mut recovery = RecoveryObserver::new(joints.clone(), fault_tick.unwrap_or(u64::MAX), dt);
-    let r = Run::new(setup, method)
-        .seed(seed)
-        .calibration(calibration)
+    let place = format!(
+        "arm {}, cell {}",
+        campaign.config.arms[cell.arm].name, cell.label
+    );
+    let r = begin_run(setup, method, seed, calibration, external, &place)?
         .observe(&mut recovery, ObserverMode::Always)
         .execute()?;
     let mse_post = match &r.mse_post_fault_per_joint {
@@ -240,7 +300,7 @@ fn run_job(
     Ok(CampaignRun {
         job,
         cell: cell_index,
-        method,
+        method: method.clone(),
         seed,
         outcome: r.outcome.name().to_string(),
         verdict: verdict_of(&r, judged, runaway, &campaign.config.verdict),
@@ -318,7 +378,7 @@ pub struct CampaignRecords {
 /// The detector calibrations a set of jobs needs, one per distinct healthy schedule.
 fn calibrations(
     campaign: &Campaign,
-    jobs: &[(usize, usize, Method, usize)],
+    jobs: &[(usize, usize, &MethodId, usize)],
     cache: Option<&Path>,
 ) -> Result<BTreeMap<String, Calibration>, ScenarioError> {
     let mut needed: BTreeMap<String, RunSetup> = BTreeMap::new();
@@ -360,8 +420,22 @@ pub fn run_campaign_journaled(
     progress: &(dyn Fn(usize, usize) + Sync),
     journal: Option<&super::Journal>,
 ) -> Result<CampaignRecords, ScenarioError> {
+    run_campaign_with(campaign, shard, cache, progress, journal, &[])
+}
+
+/// [`run_campaign_journaled`] with the caller's methods: one per name in the campaign's
+/// `external_methods` (each run builds its own parts from any worker thread).
+pub fn run_campaign_with(
+    campaign: &Campaign,
+    shard: Shard,
+    cache: Option<&Path>,
+    progress: &(dyn Fn(usize, usize) + Sync),
+    journal: Option<&super::Journal>,
+    external: &[ExternalMethod<'_>],
+) -> Result<CampaignRecords, ScenarioError> {
+    check_externals(campaign, external)?;
     let all = campaign.jobs();
-    let in_shard: Vec<(usize, usize, Method, usize)> = all
+    let in_shard: Vec<(usize, usize, &MethodId, usize)> = all
         .iter()
         .enumerate()
         .filter(|(j, _)| shard.contains(*j))
@@ -387,9 +461,20 @@ pub fn run_campaign_journaled(
     let cals = calibrations(campaign, &jobs, cache)?;
     let done = std::sync::atomic::AtomicUsize::new(total - jobs.len() - reaching_jobs.len());
     let stopped = || crate::scenario::runner::all_runs_stopping();
+    // A method of the caller's that failed: no job starts and no run is journaled after.
+    let failed = || {
+        crate::scenario::method::failed_external(external).map(|name| ScenarioError::Invalid {
+            path: campaign.path.clone(),
+            field: "external_methods".into(),
+            message: format!("method {name:?} failed in a run; the campaign stopped"),
+        })
+    };
     let results: Vec<Result<CampaignRun, ScenarioError>> = jobs
         .par_iter()
         .map(|&(j, c, m, s)| {
+            if let Some(e) = failed() {
+                return Err(e);
+            }
             let started = std::time::Instant::now();
             let setup = campaign.cell_setup(&campaign.cells[c]);
             let cal = if m.needs_detector() {
@@ -397,7 +482,10 @@ pub fn run_campaign_journaled(
             } else {
                 None
             };
-            let r = run_job(campaign, &setup, j, c, m, s, cal)?;
+            let r = run_job(campaign, &setup, (j, c, m, s), cal, external)?;
+            if let Some(e) = failed() {
+                return Err(e);
+            }
             if let Some(w) = journal
                 && r.outcome != "stopped"
                 && !stopped()
@@ -424,9 +512,15 @@ pub fn run_campaign_journaled(
     let reach: Vec<Result<(usize, Vec<ReachingRun>), ScenarioError>> = reaching_jobs
         .par_iter()
         .map(|&i| {
+            if let Some(e) = failed() {
+                return Err(e);
+            }
             let started = std::time::Instant::now();
             let job = all.len() + i;
-            let r = run_reaching(campaign, &reaching[i], job, cache)?;
+            let r = run_reaching(campaign, &reaching[i], job, cache, external)?;
+            if let Some(e) = failed() {
+                return Err(e);
+            }
             if let Some(w) = journal
                 && !stopped()
             {

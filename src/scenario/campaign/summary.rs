@@ -4,12 +4,13 @@ use std::collections::BTreeMap;
 
 use super::{Campaign, CampaignRun, Verdict};
 use crate::scenario::Method;
+use crate::scenario::method::MethodId;
 
 /// A cell's numbers for one method, over its seeds.
 #[derive(Clone, Debug, PartialEq)]
 pub struct CellSummary {
     pub cell: usize,
-    pub method: Method,
+    pub method: MethodId,
     pub seeds: usize,
     /// The worst verdict over the seeds.
     pub verdict: Verdict,
@@ -33,7 +34,7 @@ pub struct CellSummary {
 /// A method's numbers over every cell.
 #[derive(Clone, Debug, PartialEq)]
 pub struct MethodSummary {
-    pub method: Method,
+    pub method: MethodId,
     pub cells: usize,
     pub recovered: usize,
     pub degraded: usize,
@@ -88,16 +89,16 @@ pub fn summarise(
     runs: &[CampaignRun],
 ) -> (Vec<CellSummary>, Vec<MethodSummary>) {
     let tolerance = campaign.config.verdict.tolerance;
-    let mut by: BTreeMap<(usize, Method), Vec<&CampaignRun>> = BTreeMap::new();
+    let mut by: BTreeMap<(usize, &MethodId), Vec<&CampaignRun>> = BTreeMap::new();
     for r in runs {
-        by.entry((r.cell, r.method)).or_default().push(r);
+        by.entry((r.cell, &r.method)).or_default().push(r);
     }
     let mut cells = Vec::new();
     for c in 0..campaign.cells.len() {
         let mut rows: Vec<CellSummary> = Vec::new();
-        for &m in &campaign.methods {
+        for m in &campaign.methods {
             let Some(rs) = by.get(&(c, m)) else { continue };
-            rows.push(cell_summary(c, m, rs));
+            rows.push(cell_summary(c, m.clone(), rs));
         }
         compare_with_references(&mut rows, tolerance);
         cells.extend(rows);
@@ -105,13 +106,13 @@ pub fn summarise(
     let methods = campaign
         .methods
         .iter()
-        .map(|&m| method_summary(campaign, &cells, m))
+        .map(|m| method_summary(campaign, &cells, m))
         .collect();
     (cells, methods)
 }
 
 /// One method's numbers in one cell, over its seeds (compared with the oracle and no-FT later).
-fn cell_summary(c: usize, m: Method, rs: &[&CampaignRun]) -> CellSummary {
+fn cell_summary(c: usize, m: MethodId, rs: &[&CampaignRun]) -> CellSummary {
     let (mse_mean, mse_std) = mean_std(&rs.iter().map(|r| r.mse_post).collect::<Vec<_>>());
     let final_error_mean = mean_std(&rs.iter().map(|r| r.max_final_error).collect::<Vec<_>>()).0;
     let delays: Vec<f64> = rs.iter().filter_map(|r| r.delay).collect();
@@ -177,8 +178,8 @@ fn compare_with_references(rows: &mut [CellSummary], tolerance: f64) {
 }
 
 /// A method's totals over the cells' summaries.
-fn method_summary(campaign: &Campaign, cells: &[CellSummary], m: Method) -> MethodSummary {
-    let mine: Vec<&CellSummary> = cells.iter().filter(|c| c.method == m).collect();
+fn method_summary(campaign: &Campaign, cells: &[CellSummary], m: &MethodId) -> MethodSummary {
+    let mine: Vec<&CellSummary> = cells.iter().filter(|c| c.method == *m).collect();
     let count = |v: Verdict| mine.iter().filter(|c| c.verdict == v).count();
     let fault: Vec<&&CellSummary> = mine
         .iter()
@@ -194,7 +195,7 @@ fn method_summary(campaign: &Campaign, cells: &[CellSummary], m: Method) -> Meth
         .filter(|c| campaign.cells[c.cell].is_healthy())
         .collect();
     MethodSummary {
-        method: m,
+        method: m.clone(),
         cells: mine.len(),
         recovered: count(Verdict::Recovered),
         degraded: count(Verdict::Degraded),
