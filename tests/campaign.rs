@@ -209,11 +209,11 @@ fn the_bundled_campaigns_expand_to_their_grids() {
     assert_eq!(expand(&default, &default.onsets).len(), 234);
     assert_eq!(default.arms.len(), 6);
     let actuators = load("actuators.toml");
-    // Per arm: healthy + 5 channels x 4 timing kinds + 2 joints x 6 actuator kinds + 2.
-    assert_eq!(
-        expand(&actuators, &actuators.onsets).len(),
-        2 * (1 + 20 + 12 + 2)
-    );
+    // Per arm: healthy + 5 channels x 4 timing kinds + 2 joints x 6 actuator kinds + 3
+    // disturbance cells (one with an obstacle on the path).
+    let cells = expand(&actuators, &actuators.onsets);
+    assert_eq!(cells.len(), 2 * (1 + 20 + 12 + 3));
+    assert_eq!(cells.iter().filter(|c| c.contact.is_some()).count(), 2);
     let reaching = load("reaching.toml");
     let cells = expand(&reaching, &reaching.onsets);
     assert_eq!(cells.len(), 6);

@@ -353,3 +353,101 @@ fn resting_on_a_table_is_not_a_fault() {
         }
     }
 }
+
+fn contact_campaign(dir: &std::path::Path, depth: f64, targets: &str) -> std::path::PathBuf {
+    let text = format!(
+        r#"
+name = "contact"
+seeds = 1
+methods = ["no-ft", "hybrid"]
+healthy = false
+defaults = {{ duration = 12.0, plant = {{ engine = "articulated" }}{targets} }}
+[[arms]]
+name = "paper"
+scenario = "{}"
+[[disturbance_cells]]
+label = "obstacle on the path"
+contact = {{ depth = {depth} }}
+"#,
+        common::repo("assets/scenarios/paper_healthy.toml").display()
+    );
+    let path = dir.join("contact.toml");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+/// A campaign's contact cell places its obstacle per arm on the end effector's motion to the
+/// last target (its face `depth` before the target, square to the motion), runs on rapier
+/// whatever the campaign's engine, calibrates detectors without it, and holds the arm short of
+/// its target without a runaway; a `depth` longer than the motion is refused (exit 2).
+#[test]
+fn a_contact_cell_puts_an_obstacle_on_each_arms_path() {
+    use aift::arm::kinematics::forward;
+    use aift::scenario::campaign::{Campaign, Shard, Verdict, run_campaign};
+    let tmp = tempfile::tempdir().unwrap();
+    let campaign = Campaign::load(&contact_campaign(tmp.path(), 0.05, ""), &[]).unwrap();
+    assert_eq!(campaign.cells.len(), 1);
+    let cell = &campaign.cells[0];
+    assert!(!cell.is_healthy());
+    let setup = campaign.cell_setup(cell);
+    let plant = &setup.scenario().plant;
+    assert_eq!(plant.engine, Engine::Rapier);
+    assert_eq!(plant.rapier.obstacles.len(), 1);
+    let plain = campaign.calibration_setup(cell);
+    assert_eq!(plain.scenario().plant.engine, Engine::Articulated);
+    assert!(plain.scenario().plant.rapier.obstacles.is_empty());
+    // Geometry, from the end effector's positions at the two targets.
+    let sc = setup.scenario();
+    let ee = |q: &[f64]| {
+        let mut poses = vec![nalgebra::Isometry3::identity(); setup.model.bodies.len()];
+        forward(&setup.model, q, &mut poses);
+        setup.ee.position(&poses)
+    };
+    let (a, b) = (ee(&sc.targets[0].q), ee(&sc.targets[1].q));
+    let d = (b - a).normalize();
+    let o = &plant.rapier.obstacles[0];
+    let centre = Vector3::new(o.position[0], o.position[1], o.position[2]);
+    let rotation = nalgebra::UnitQuaternion::from_euler_angles(o.rpy[0], o.rpy[1], o.rpy[2]);
+    // The box's z axis is the motion; its near face is 0.05 m before the target.
+    assert!((rotation * Vector3::z() - d).norm() < 1e-12);
+    let face = centre - d * (o.size[2] / 2.0);
+    assert!(((b - face).dot(&d) - 0.05).abs() < 1e-12);
+    assert!((b - face).cross(&d).norm() < 1e-12, "centred on the line");
+    assert!(
+        (a - face).dot(&d) < -0.01,
+        "the motion starts before the face"
+    );
+    // The runs: the arm lands on it (a contact force) and rests short of its target.
+    let r = aift::scenario::Run::new(&setup, Method::NoFt)
+        .seed(1)
+        .execute()
+        .unwrap();
+    assert_eq!(r.outcome.name(), "completed");
+    assert!(
+        r.max_contact_normal_force > 1.0,
+        "{}",
+        r.max_contact_normal_force
+    );
+    assert!(r.max_final_error > 0.01, "{}", r.max_final_error);
+    let records = run_campaign(&campaign, Shard::WHOLE, None, &|_, _| {}).unwrap();
+    for run in &records.runs {
+        assert_eq!(run.verdict, Verdict::Recovered, "{}", run.method);
+        assert!(!run.runaway);
+        assert_eq!(run.detected, None);
+    }
+    // An obstacle deeper than the motion is long (2 cm of joint 2): refused, naming the cell.
+    let short = ", targets = [{ time = 0.0, q = [-0.2, 0.5] }, { time = 7.5, q = [-0.2, 0.52] }]";
+    let out = common::aift_in(
+        &[
+            "campaign",
+            contact_campaign(tmp.path(), 0.05, short).to_str().unwrap(),
+            "--out",
+            "never",
+        ],
+        tmp.path(),
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("contact") && err.contains("depth"), "{err}");
+    assert!(!tmp.path().join("never").exists());
+}

@@ -259,12 +259,93 @@ pub struct PairEntry {
     pub faults: Vec<FaultSpec>,
 }
 
-/// A disturbance cell: its disturbances as in a scenario file (the correct verdict: no fault).
+/// A disturbance cell: its disturbances as in a scenario file, and or a table to touch (the
+/// correct verdict: no fault).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DisturbanceEntry {
     pub label: String,
+    #[serde(default)]
     pub disturbances: Vec<crate::plant::DisturbanceSpec>,
+    /// An obstacle on the end effector's path to its last target, placed per arm (the cell runs
+    /// on rapier).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub contact: Option<ContactEntry>,
+}
+
+/// An obstacle on the path, placed per arm: a fixed box square to the end effector's motion
+/// from the target before the last to the last (d, the unit vector from the first position to
+/// the second), its near face `depth` before the last target's position along d and centred on
+/// that line, so that the arm, moving to that target, runs into it and rests against it short of
+/// the target: a table when the motion goes down, a wall when it goes sideways
+/// (docs/campaigns.md, "Contact cells"). Contact needs rapier: the cell runs on it whatever the
+/// campaign's engine.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ContactEntry {
+    /// How far (m) before the last target's end effector position the obstacle's face lies,
+    /// along the motion, in (0, 0.5] (and at least 1 cm short of the whole motion).
+    #[serde(default = "default_contact_depth")]
+    pub depth: f64,
+    /// The box's full extents (m, each in (0, 10]): across the motion (x, y) and along it (z).
+    #[serde(default = "default_table_size")]
+    pub size: [f64; 3],
+    /// Coulomb friction coefficient of its contacts (>= 0, at most 10).
+    #[serde(default = "default_table_friction")]
+    pub friction: f64,
+}
+
+fn default_contact_depth() -> f64 {
+    0.03
+}
+
+fn default_table_size() -> [f64; 3] {
+    [0.3, 0.3, 0.05]
+}
+
+fn default_table_friction() -> f64 {
+    0.5
+}
+
+impl ContactEntry {
+    /// Its obstacle for an end effector moving from `from` to `to` (world frame, m); None when
+    /// the motion is not longer than `depth` + 1 cm (the face would not lie between them).
+    pub fn obstacle(&self, from: [f64; 3], to: [f64; 3]) -> Option<crate::plant::Obstacle> {
+        use nalgebra::{UnitQuaternion, Vector3};
+        let (a, b) = (Vector3::from(from), Vector3::from(to));
+        let length = (b - a).norm();
+        if length.is_nan() || length <= self.depth + 0.01 {
+            return None;
+        }
+        let d = (b - a) / length;
+        // The box's local z along d: its face at b - depth d, its centre half its thickness on.
+        let centre = b + d * (self.size[2] / 2.0 - self.depth);
+        let rotation = UnitQuaternion::rotation_between(&Vector3::z(), &d).unwrap_or_else(|| {
+            UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI)
+        });
+        let (roll, pitch, yaw) = rotation.euler_angles();
+        Some(crate::plant::Obstacle {
+            shape: crate::plant::ObstacleShape::Box,
+            size: self.size.to_vec(),
+            position: vec![centre.x, centre.y, centre.z],
+            rpy: vec![roll, pitch, yaw],
+            friction: self.friction,
+        })
+    }
+
+    /// Checks its own fields (`field` names it in messages).
+    pub fn check(&self) -> Result<(), String> {
+        if !(self.depth > 0.0 && self.depth <= 0.5) {
+            return Err(format!("depth {} must be in (0, 0.5] m", self.depth));
+        }
+        if !self.size.iter().all(|s| *s > 0.0 && *s <= 10.0) {
+            return Err(format!("size {:?}: each extent in (0, 10] m", self.size));
+        }
+        if !(self.friction >= 0.0 && self.friction <= 10.0) {
+            return Err(format!("friction {} must be in [0, 10]", self.friction));
+        }
+        Ok(())
+    }
 }
 
 fn is_moving_only(onsets: &[Onset]) -> bool {

@@ -1,7 +1,7 @@
 //! The grid: a campaign file expanded into cells (arm x channel x kind x onset, pairs, healthy;
 //! arm x joint x actuator kind x onset; disturbance cells).
 
-use super::{CampaignConfig, Onset, OnsetConfig};
+use super::{CampaignConfig, ContactEntry, Onset, OnsetConfig};
 use crate::plant::{ActuatorFaultSpec, DisturbanceSpec, JointSelection};
 use crate::sensors::{ChannelSelection, FaultSpec};
 
@@ -22,12 +22,17 @@ pub struct Cell {
     pub faults: Vec<FaultSpec>,
     pub actuator_faults: Vec<ActuatorFaultSpec>,
     pub disturbances: Vec<DisturbanceSpec>,
+    /// A table to touch (the cell runs on rapier).
+    pub contact: Option<ContactEntry>,
 }
 
 impl Cell {
-    /// No sensor fault, actuator fault or disturbance.
+    /// No sensor fault, actuator fault, disturbance or contact.
     pub fn is_healthy(&self) -> bool {
-        self.faults.is_empty() && self.actuator_faults.is_empty() && self.disturbances.is_empty()
+        self.faults.is_empty()
+            && self.actuator_faults.is_empty()
+            && self.disturbances.is_empty()
+            && self.contact.is_none()
     }
 
     /// A cell of sensor faults only (none of actuators or disturbances), or the healthy cell.
@@ -42,6 +47,7 @@ impl Cell {
             faults: vec![],
             actuator_faults: vec![],
             disturbances: vec![],
+            contact: None,
         }
     }
 }
@@ -159,6 +165,7 @@ pub fn expand(config: &CampaignConfig, onsets: &OnsetConfig) -> Vec<Cell> {
         for d in &config.disturbance_cells {
             cells.push(Cell {
                 disturbances: d.disturbances.clone(),
+                contact: d.contact.clone(),
                 ..Cell::sensor_cell(a, d.label.clone(), String::new(), "disturbance".into())
             });
         }

@@ -32,8 +32,9 @@ use crate::fsio;
 
 pub use compare::{Better, PairComparison, SignedRank, compare_all, compare_pair, signed_rank};
 pub use config::{
-    ArmEntry, CampaignConfig, CampaignKind, GroupSizes, MAX_TARGETS_FILE_BYTES, Onset, OnsetConfig,
-    PairEntry, ReachingConfig, ReachingProtocol, VerdictConfig, read_reaching_targets,
+    ArmEntry, CampaignConfig, CampaignKind, ContactEntry, DisturbanceEntry, GroupSizes,
+    MAX_TARGETS_FILE_BYTES, Onset, OnsetConfig, PairEntry, ReachingConfig, ReachingProtocol,
+    VerdictConfig, read_reaching_targets,
 };
 pub use grid::{Cell, expand};
 pub use journal::{JOURNAL_FORMAT, Journal, JournalMode, JournalStart, MAX_JOURNAL_BYTES};
@@ -243,7 +244,23 @@ impl Campaign {
         if cell.rest {
             s.loaded.scenario.targets.truncate(1);
         }
+        if let Some(contact) = &cell.contact {
+            let (from, to) = last_motion(&s);
+            let obstacle = contact.obstacle(from, to).expect("checked by check_cells");
+            let plant = &mut s.loaded.scenario.plant;
+            plant.engine = crate::plant::Engine::Rapier;
+            plant.rapier.obstacles.push(obstacle);
+        }
         s
+    }
+
+    /// The setup whose detector calibration a cell's detector methods use: the cell's, without
+    /// its table (the detector is calibrated on the arm's healthy runs, as for every other
+    /// disturbance: contact is what it must not mistake for a fault).
+    pub fn calibration_setup(&self, cell: &Cell) -> RunSetup {
+        let mut plain = cell.clone();
+        plain.contact = None;
+        self.cell_setup(&plain)
     }
 
     /// Every job in canonical order: (cell, method, seed index).
@@ -593,11 +610,15 @@ fn check_grid(config: &CampaignConfig, path: &Path, methods: usize) -> Result<()
                 ),
             ));
         }
-        if d.disturbances.is_empty() {
+        if d.disturbances.is_empty() && d.contact.is_none() {
             return Err(bad(
                 &format!("disturbance_cells[{i}].disturbances"),
-                "lists no disturbance".into(),
+                "lists no disturbance (and the cell has no `contact`)".into(),
             ));
+        }
+        if let Some(c) = &d.contact {
+            c.check()
+                .map_err(|e| bad(&format!("disturbance_cells[{i}].contact"), e))?;
         }
     }
     // Cells per arm: healthy + channels x (kinds x onsets) + pairs + joints x actuator kinds x
@@ -730,6 +751,28 @@ fn prepare_arms(
     Ok(arms)
 }
 
+/// The end effector's world positions at the target before the last and at the last (the
+/// initial pose stands for a missing one).
+fn last_motion(s: &RunSetup) -> ([f64; 3], [f64; 3]) {
+    let sc = s.scenario();
+    let n = sc.targets.len();
+    let q = |i: Option<usize>| {
+        i.and_then(|i| sc.targets.get(i))
+            .map_or(&sc.initial.q, |t| &t.q)
+    };
+    (
+        end_effector_at(s, q(n.checked_sub(2))),
+        end_effector_at(s, q(n.checked_sub(1))),
+    )
+}
+
+fn end_effector_at(s: &RunSetup, q: &[f64]) -> [f64; 3] {
+    let mut poses = vec![nalgebra::Isometry3::identity(); s.model.bodies.len()];
+    crate::arm::kinematics::forward(&s.model, q, &mut poses);
+    let p = s.ee.position(&poses);
+    [p.x, p.y, p.z]
+}
+
 /// Checks the expanded grid: its size, and each cell's faults against its arm (a valid fault
 /// that starts before the run ends).
 fn check_cells(
@@ -759,6 +802,33 @@ fn check_cells(
     for cell in cells {
         let setup = &arms[cell.arm];
         let sc = setup.scenario();
+        if let Some(contact) = &cell.contact {
+            // The obstacle lies on the motion to the last target: that motion must exist and be
+            // longer than `depth`.
+            let field = format!(
+                "cell `{}` of arm {}: contact",
+                cell.label, config.arms[cell.arm].name
+            );
+            if sc.targets.len() < 2 {
+                return Err(bad(
+                    &field,
+                    "needs a second target (the motion the obstacle stands in)".into(),
+                ));
+            }
+            let (from, to) = last_motion(setup);
+            if contact.obstacle(from, to).is_none() {
+                let length = nalgebra::Vector3::from(to) - nalgebra::Vector3::from(from);
+                return Err(bad(
+                    &field,
+                    format!(
+                        "the end effector moves {:.3} m to its last target; `depth` ({} m) + \
+                         1 cm must be shorter",
+                        length.norm(),
+                        contact.depth
+                    ),
+                ));
+            }
+        }
         for (k, f) in cell.faults.iter().enumerate() {
             f.to_fault(&setup.layout, sc.dt).map_err(|e| {
                 bad(

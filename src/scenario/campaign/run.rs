@@ -220,6 +220,17 @@ fn check_externals(
     Ok(())
 }
 
+/// The verdict of a contact cell, where the table may keep the arm from its target: recovered
+/// when the run completes without a runaway (resting against the table or at the target), failed
+/// on a runaway or chattering, diverged on divergence (docs/campaigns.md, "Contact cells").
+fn contact_verdict(r: &RunResult, runaway: bool) -> Verdict {
+    match r.outcome.name() {
+        "diverged" => Verdict::Diverged,
+        "completed" if !runaway => Verdict::Recovered,
+        _ => Verdict::Failed,
+    }
+}
+
 /// Runs one job: (job, cell, method, seed index).
 fn run_job(
     campaign: &Campaign,
@@ -297,13 +308,18 @@ fn run_job(
         ),
         _ => (None, None, None),
     };
+    let verdict = if cell.contact.is_some() {
+        contact_verdict(&r, runaway)
+    } else {
+        verdict_of(&r, judged, runaway, &campaign.config.verdict)
+    };
     Ok(CampaignRun {
         job,
         cell: cell_index,
         method: method.clone(),
         seed,
         outcome: r.outcome.name().to_string(),
-        verdict: verdict_of(&r, judged, runaway, &campaign.config.verdict),
+        verdict,
         mse_post,
         max_final_error: r.max_final_error,
         runaway,
@@ -384,7 +400,7 @@ fn calibrations(
     let mut needed: BTreeMap<String, RunSetup> = BTreeMap::new();
     for &(_, c, m, _) in jobs {
         if m.needs_detector() {
-            let setup = campaign.cell_setup(&campaign.cells[c]);
+            let setup = campaign.calibration_setup(&campaign.cells[c]);
             needed
                 .entry(crate::scenario::fingerprint(&setup))
                 .or_insert(setup);
@@ -478,7 +494,8 @@ pub fn run_campaign_with(
             let started = std::time::Instant::now();
             let setup = campaign.cell_setup(&campaign.cells[c]);
             let cal = if m.needs_detector() {
-                cals.get(&crate::scenario::fingerprint(&setup))
+                let plain = campaign.calibration_setup(&campaign.cells[c]);
+                cals.get(&crate::scenario::fingerprint(&plain))
             } else {
                 None
             };
