@@ -20,7 +20,7 @@ pub use kinematics::{EndEffector, Kinematics};
 pub use model::{
     ArmModel, BodySpec, ColliderSpec, JointKind, JointSpec, LinkFrame, ShapeSpec, to_parry_pose,
 };
-pub use model_error::ModelConfig;
+pub use model_error::{ModelConfig, PredictionStep};
 pub use urdf::{UrdfOptions, load_urdf, load_urdf_with, parse_urdf, parse_urdf_with};
 
 /// The arm as `aift check-urdf --json` prints it: joints (kind, parent and child links, axis,

@@ -98,6 +98,25 @@ pub struct ModelConfig {
     /// The relative error a model-based estimator assumes for its predicted acceleration: each
     /// joint's process noise is max(`acceleration_noise`, this x |qdd|).
     pub relative_error: f64,
+    /// How a model-based estimator predicts a tick: `explicit` (the acceleration at the tick's
+    /// start) or `implicit` (damping and the friction ramp at its end, stable for any damping;
+    /// measured in docs/method.md, "Model error": `explicit` stays the default until the
+    /// committed results are regenerated with `implicit`).
+    pub step: PredictionStep,
+}
+
+/// How a model-based estimator predicts one tick from the model.
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema,
+)]
+#[serde(rename_all = "kebab-case")]
+pub enum PredictionStep {
+    /// qdd = M^-1 (u - bias - D qd - F ramp(qd)) at the tick's start.
+    #[default]
+    Explicit,
+    /// (M + dt D_eff) qdd = u - bias - D qd - F ramp(qd): damping (and friction inside its ramp)
+    /// at the tick's end ([`crate::arm::Dynamics::forward_dynamics_implicit`]).
+    Implicit,
 }
 
 impl Default for ModelConfig {
@@ -114,6 +133,7 @@ impl Default for ModelConfig {
             joints: Vec::new(),
             acceleration_noise: 2.0,
             relative_error: 0.1,
+            step: PredictionStep::Explicit,
         }
     }
 }

@@ -87,6 +87,16 @@ impl HypothesisBank {
     /// Predicts every active hypothesis one tick with the transition, hypothesis j's process
     /// noise scaled by `scale(j)`.
     pub fn predict(&mut self, transition: &Transition<'_>, scale: impl Fn(usize) -> f64) {
+        self.predict_per_joint(transition, |j, _| scale(j));
+    }
+
+    /// [`Self::predict`] with hypothesis j's process noise on joint i scaled by `scale(j, i)`
+    /// (the hybrid's actuator hypotheses: a joint whose torque is not the commanded one).
+    pub fn predict_per_joint(
+        &mut self,
+        transition: &Transition<'_>,
+        scale: impl Fn(usize, usize) -> f64,
+    ) {
         for (j, (f, _)) in self
             .filters
             .iter_mut()
@@ -94,7 +104,7 @@ impl HypothesisBank {
             .enumerate()
             .filter(|(_, (_, a))| **a)
         {
-            f.predict(transition, scale(j));
+            f.predict_scaled(transition, |i| scale(j, i));
         }
     }
 

@@ -169,6 +169,15 @@ pub struct HybridConfig {
     /// the one-channel failures, each from the start). For the first this many ticks the bank's
     /// model acceleration is taken at the u-AIC's belief (with 0: never).
     pub resync_ticks: u64,
+    /// Actuator hypotheses in the bank (docs/method.md, "The hybrid", "Actuators and external
+    /// torques"): beside the sensors, each joint's torque can be "not the commanded one" (its
+    /// process noise `actuator_broad` times the model's), and one hypothesis holds an external
+    /// torque on every joint at once (a push, a payload, a contact), so that an unexpected
+    /// acceleration is explained as a torque, not as sensors failing. Off by default: measured
+    /// in docs/method.md, it helps actuator faults and hurts tachometer spikes.
+    pub actuators: bool,
+    /// An actuator hypothesis' process noise (standard deviation) as a multiple of the model's.
+    pub actuator_broad: f64,
 }
 
 impl Default for HybridConfig {
@@ -185,6 +194,8 @@ impl Default for HybridConfig {
             stuck_weight: 0.01,
             stuck_width: 1e-3,
             resync_ticks: 500,
+            actuators: false,
+            actuator_broad: 100.0,
         }
     }
 }
@@ -216,6 +227,15 @@ impl HybridConfig {
             return Err(crate::SettingError::new(
                 "stuck_weight",
                 "must be in [0, 1)",
+            ));
+        }
+        if !(self.actuator_broad.is_finite()
+            && self.actuator_broad > 1.0
+            && self.actuator_broad <= 1e6)
+        {
+            return Err(crate::SettingError::new(
+                "actuator_broad",
+                "must be in (1, 1e6]",
             ));
         }
         if !(self.stuck_width.is_finite() && self.stuck_width > 0.0 && self.stuck_width <= 100.0) {
@@ -252,11 +272,14 @@ pub struct Hybrid {
     /// The hypotheses (slots relative to the base, see [`Slot`]), their probabilities and
     /// which are in play (swap slots only while the base holds a failure).
     bank: HypothesisBank,
-    /// The channels a hypothesis can hold failed: each encoder and tachometer, and the camera
-    /// as its first output (with `camera = "bank"`).
+    /// What a hypothesis can hold failed: each encoder and tachometer, the camera as its first
+    /// output (with `camera = "bank"`) and, with `actuators`, each joint's actuator (key
+    /// `channels + joint`) and the external torque on every joint (key `channels + joints`).
     keys: Vec<usize>,
-    /// The channels the base hypothesis (slot 0) holds failed, by channel index.
+    /// The keys the base hypothesis (slot 0) holds failed, by channel index (then actuators).
     base_failed: Vec<bool>,
+    /// Scratch: each active hypothesis' process-noise scale per joint (h x n, row-major).
+    joint_scale: Vec<f64>,
     /// The base's failed keys in the order they were added (the last is the least established).
     order: Vec<usize>,
     /// The all-healthy hypothesis' covariance when the first failure was accepted: a restarted
@@ -309,6 +332,11 @@ impl Hybrid {
                     .start,
             );
         }
+        let n = layout.n_joints();
+        if config.actuators {
+            // Each joint's actuator, then the external torque on every joint.
+            keys.extend((0..=n).map(|i| layout.len() + i));
+        }
         let k = keys.len();
         let dim = ekf.x.len();
         // Slots: the base, a toggle per key, a swap per key.
@@ -324,7 +352,8 @@ impl Hybrid {
             healthy_p: ekf.p.clone(),
             bank: HypothesisBank::new(ekf, probability, 1 + k),
             keys,
-            base_failed: vec![false; layout.len()],
+            base_failed: vec![false; layout.len() + n + 1],
+            joint_scale: vec![1.0; h * n],
             order: Vec::with_capacity(k),
             winner: 0,
             winner_since: 0,
@@ -388,7 +417,24 @@ impl Hybrid {
     /// The channels the base hypothesis holds failed, the failures the bank has accepted
     /// (channel indices; the camera as its first output).
     pub fn failed_channels(&self) -> impl Iterator<Item = usize> + '_ {
-        (0..self.base_failed.len()).filter(|&c| self.base_failed[c])
+        (0..self.layout.len()).filter(|&c| self.base_failed[c])
+    }
+
+    /// The joints whose actuator the base hypothesis holds failed, and whether it holds an
+    /// external torque (with `actuators`).
+    pub fn failed_actuators(&self) -> (Vec<usize>, bool) {
+        let (c, n) = (self.layout.len(), self.layout.n_joints());
+        (
+            (0..n).filter(|&i| self.base_failed[c + i]).collect(),
+            self.base_failed[c + n],
+        )
+    }
+
+    /// Whether hypothesis j holds joint i's torque unknown: its actuator, or the external
+    /// torque.
+    fn holds_torque_unknown(&self, j: usize, i: usize) -> bool {
+        let (c, n) = (self.layout.len(), self.layout.n_joints());
+        self.config.actuators && (self.holds_failed(j, c + i) || self.holds_failed(j, c + n))
     }
 
     /// What slot j holds: the base, the base with one key toggled, or the base with its last
@@ -437,9 +483,9 @@ impl Hybrid {
     /// re-anchored. A winner that trusts more (a failure that ended, a false blame withdrawn)
     /// lets the belief take the channel back through its precision.
     fn distrusts_more(&self, new: usize, old: usize) -> bool {
-        self.keys
-            .iter()
-            .any(|&key| self.holds_failed(new, key) && !self.holds_failed(old, key))
+        self.keys.iter().any(|&key| {
+            key < self.layout.len() && self.holds_failed(new, key) && !self.holds_failed(old, key)
+        })
     }
 
     /// Makes hypothesis `w` the base (docs/method.md, "The hybrid"). The bank is always the base,
@@ -675,8 +721,23 @@ impl Hybrid {
             } else {
                 self.bank.filters[self.winner].x.as_slice()
             };
+            if self.config.actuators {
+                let n = self.layout.n_joints();
+                let broad = self.config.actuator_broad;
+                for j in 0..h {
+                    for i in 0..n {
+                        self.joint_scale[j * n + i] = if self.holds_torque_unknown(j, i) {
+                            broad
+                        } else {
+                            1.0
+                        };
+                    }
+                }
+            }
             let transition = self.model.evaluate(x, input.applied_torques);
-            self.bank.predict(&transition, |_| 1.0);
+            let (scale, n) = (&self.joint_scale, self.layout.n_joints());
+            self.bank
+                .predict_per_joint(&transition, |j, i| scale[j * n + i]);
             self.bank.switch(self.config.switch);
         }
         self.bank.linearise();
@@ -786,6 +847,7 @@ pub fn bank_transition(
     gravity: [f64; 3],
     noise: &crate::arm::ModelConfig,
     acceleration_bound: f64,
+    dt: f64,
 ) -> Box<dyn TransitionModel> {
     let n = model.joints.len();
     match config.bank_model {
@@ -798,7 +860,8 @@ pub fn bank_transition(
                 noise.relative_error,
                 noise.acceleration_noise,
             )
-            .with_uncertainty(noise.uncertainty()),
+            .with_uncertainty(noise.uncertainty())
+            .with_step(noise.step, dt),
         ),
     }
 }
@@ -833,6 +896,77 @@ mod tests {
         let nominal = [1e6, 1e6, 1e6, 1e6, 1e4, 1e4];
         let cv = Box::new(ConstantVelocity::new(2, 2.0));
         Hybrid::new(uaic, ekf, cv, HybridConfig::default(), &nominal, 1e-6)
+    }
+
+    /// The toy arm's readings while joint 1 accelerates at `a` rad/s^2 from 0.6 s on (a torque
+    /// the constant-velocity bank does not know), the camera missing; returns the hybrid after
+    /// 1.6 s and the least precision of each channel after the first 0.1 s.
+    fn accelerate(actuators: bool, a: f64) -> (Hybrid, Vec<f64>) {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, Normal};
+        let layout = ChannelLayout::new(2, CameraModel::Pinhole);
+        let observation =
+            crate::estimation::models::GpCamera::shared(layout, Arc::new(GpModel::toy()));
+        let uaic = Uaic::new(UaicConfig::default(), observation.clone(), 1e-3);
+        let ekf = Ekf::new(observation, 1e-3);
+        let nominal = [1e6, 1e6, 1e6, 1e6, 1e4, 1e4];
+        let cv = Box::new(ConstantVelocity::new(2, 2.0));
+        let config = HybridConfig {
+            actuators,
+            ..HybridConfig::default()
+        };
+        let mut h = Hybrid::new(uaic, ekf, cv, config, &nominal, 1e-6);
+        let mut rng = rand::rngs::StdRng::seed_from_u64(7);
+        let noise = Normal::new(0.0, 1e-3).unwrap();
+        let mut least = nominal.to_vec();
+        for k in 0..1600u64 {
+            let t = k as f64 * 1e-3;
+            let s = (t - 0.6).max(0.0);
+            let (q, v) = (0.5 * a * s * s, a * s);
+            let mut readings = Readings::missing(&layout);
+            readings.values[0] = Some(q + noise.sample(&mut rng));
+            readings.values[1] = Some(noise.sample(&mut rng));
+            readings.values[2] = Some(v + noise.sample(&mut rng));
+            readings.values[3] = Some(noise.sample(&mut rng));
+            let input = EstimatorInput {
+                tick: k,
+                readings: &readings,
+                precisions: &nominal,
+                applied_torques: &[0.0, 0.0],
+            };
+            h.update(&input);
+            if k >= 100 {
+                for (l, p) in least.iter_mut().zip(&h.precisions) {
+                    *l = l.min(*p);
+                }
+            }
+        }
+        (h, least)
+    }
+
+    /// An unexpected torque on joint 1 (its encoder and tachometer agree with each other, not
+    /// with the bank's prediction): with actuator hypotheses the bank blames joint 1's torque
+    /// and keeps both sensors at their nominal precision; without, it blames a sensor.
+    #[test]
+    fn an_unexpected_torque_is_blamed_on_the_actuator_not_the_sensors() {
+        let (h, least) = accelerate(true, 200.0);
+        assert_eq!(h.failed_channels().count(), 0, "{:?}", h.failed_actuators());
+        let (joints, external) = h.failed_actuators();
+        assert!(joints == vec![0] || external, "{joints:?} {external}");
+        let (_, without) = accelerate(false, 200.0);
+        for c in 0..4 {
+            assert!(least[c] > 0.5 * 1e6, "channel {c}: {}", least[c]);
+        }
+        assert!(
+            without[0].min(without[2]) < 0.1 * 1e6,
+            "without actuator hypotheses a sensor of joint 1 takes the blame: {without:?}"
+        );
+        // Nothing unexpected: nothing blamed, with or without.
+        for actuators in [true, false] {
+            let (h, _) = accelerate(actuators, 0.0);
+            assert_eq!(h.failed_channels().count(), 0);
+            assert_eq!(h.failed_actuators(), (vec![], false));
+        }
     }
 
     /// The failed sets of the active hypotheses, as (slot, channel list).

@@ -292,6 +292,7 @@ mod tests {
             g,
             &noise,
             200.0,
+            1e-3,
         );
         let mut imm = Imm::new(template, &config, prediction, &nominal);
         let x = [0.3, -0.7, 0.5, -1.0];

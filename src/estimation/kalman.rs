@@ -165,6 +165,7 @@ pub fn transition_model(
     gravity: [f64; 3],
     noise: &crate::arm::ModelConfig,
     acceleration_noise: f64,
+    dt: f64,
 ) -> Box<dyn TransitionModel> {
     let n = model.joints.len();
     match process {
@@ -177,7 +178,8 @@ pub fn transition_model(
                 noise.relative_error,
                 acceleration_noise,
             )
-            .with_uncertainty(noise.uncertainty()),
+            .with_uncertainty(noise.uncertainty())
+            .with_step(noise.step, dt),
         ),
     }
 }
@@ -264,6 +266,11 @@ impl Ekf {
     /// each joint's process noise its noise times `scale`; the model's velocity damping
     /// `-dt M^-1 D` is left out of the Jacobian F = [[I, dt I], [0, I]] (small at 1 ms).
     pub fn predict(&mut self, transition: &Transition<'_>, scale: f64) {
+        self.predict_scaled(transition, |_| scale);
+    }
+
+    /// [`Self::predict`] with joint i's process noise (standard deviation) scaled by `scale(i)`.
+    pub fn predict_scaled(&mut self, transition: &Transition<'_>, scale: impl Fn(usize) -> f64) {
         let n = self.n();
         let dt = self.dt;
         let acc = transition.acceleration;
@@ -286,7 +293,7 @@ impl Ekf {
             }
         }
         for i in 0..n {
-            let s = scale * transition.noise[i];
+            let s = scale(i) * transition.noise[i];
             let s2 = s * s;
             q[(i, i)] += s2 * dt.powi(4) / 4.0;
             q[(i, n + i)] += s2 * dt.powi(3) / 2.0;
@@ -827,13 +834,19 @@ mod tests {
         let x = [q[0], q[1], qd[0], qd[1]];
         let cv = ProcessModel::ConstantVelocity;
         assert!(
-            transition_model(cv, model.clone(), g, &noise, 200.0)
+            transition_model(cv, model.clone(), g, &noise, 200.0, 1e-3)
                 .evaluate(&x, &u)
                 .acceleration
                 .is_none()
         );
-        let mut prediction =
-            transition_model(ProcessModel::Dynamics, model.clone(), g, &noise, 200.0);
+        let mut prediction = transition_model(
+            ProcessModel::Dynamics,
+            model.clone(),
+            g,
+            &noise,
+            200.0,
+            1e-3,
+        );
         let mut direct = crate::arm::Dynamics::new(model, g);
         let mut expected = vec![0.0; 2];
         assert!(direct.forward_dynamics(&q, &qd, &u, &mut expected));

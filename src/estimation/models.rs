@@ -83,6 +83,8 @@ pub struct ArmTransition {
     /// Scratch: each joint's torque error and a column of M^-1.
     torque_error: Vec<f64>,
     column: Vec<f64>,
+    /// The step of the implicit prediction (s); 0: explicit.
+    implicit_step: f64,
 }
 
 impl ArmTransition {
@@ -108,6 +110,7 @@ impl ArmTransition {
             com_torque: vec![0.0; n],
             torque_error: vec![0.0; n],
             column: vec![0.0; n],
+            implicit_step: 0.0,
         }
     }
 
@@ -177,13 +180,35 @@ impl ArmTransition {
     }
 }
 
+impl ArmTransition {
+    /// Predicts with the step `step` (with [`crate::arm::PredictionStep::Implicit`], the tick
+    /// `dt`; explicit otherwise).
+    pub fn with_step(mut self, step: crate::arm::PredictionStep, dt: f64) -> Self {
+        self.implicit_step = match step {
+            crate::arm::PredictionStep::Explicit => 0.0,
+            crate::arm::PredictionStep::Implicit => dt,
+        };
+        self
+    }
+}
+
 impl TransitionModel for ArmTransition {
     fn evaluate(&mut self, x: &[f64], torques: &[f64]) -> Transition<'_> {
         let n = self.noise.len();
-        if !self
-            .dynamics
-            .forward_dynamics(&x[..n], &x[n..], torques, &mut self.acceleration)
-        {
+        let (q, qd) = (&x[..n], &x[n..]);
+        let solved = if self.implicit_step > 0.0 {
+            self.dynamics.forward_dynamics_implicit(
+                q,
+                qd,
+                torques,
+                self.implicit_step,
+                &mut self.acceleration,
+            )
+        } else {
+            self.dynamics
+                .forward_dynamics(q, qd, torques, &mut self.acceleration)
+        };
+        if !solved {
             return self.fallback.evaluate(x, torques);
         }
         for (s, a) in self.noise.iter_mut().zip(&self.acceleration) {
@@ -281,6 +306,21 @@ mod tests {
             assert!((lhs - u[i]).abs() < 1e-9, "joint {i}: {lhs} vs {}", u[i]);
             assert_eq!(noise[i], f64::max(2.0, 0.1 * acc[i].abs()));
         }
+        // The implicit step: (M + dt D) qdd + C qd + G + D qd = u (the paper arm has no
+        // friction).
+        let dt = 1e-3;
+        let mut t = ArmTransition::new(model.clone(), [0.0, 0.0, -9.81], 2.0, 0.1, 200.0)
+            .with_step(crate::arm::PredictionStep::Implicit, dt);
+        let implicit = t.evaluate(&x, &u).acceleration.unwrap().to_vec();
+        for i in 0..2 {
+            let lhs = m[(i, 0)] * implicit[0]
+                + m[(i, 1)] * implicit[1]
+                + dt * model.joints[i].damping * implicit[i]
+                + bias[i]
+                + model.joints[i].damping * x[2 + i];
+            assert!((lhs - u[i]).abs() < 1e-9, "joint {i}: {lhs} vs {}", u[i]);
+        }
+        assert_ne!(implicit, acc);
         let mut cv = ConstantVelocity::new(2, 200.0);
         let tr = cv.evaluate(&x, &u);
         assert!(tr.acceleration.is_none());

@@ -377,6 +377,7 @@ pub fn build(method: Method, ctx: &MethodContext<'_>) -> Result<MethodParts, Sce
             sc.robot.gravity,
             &sc.model,
             acceleration_noise,
+            sc.dt,
         )
     };
     match method {
@@ -405,6 +406,7 @@ pub fn build(method: Method, ctx: &MethodContext<'_>) -> Result<MethodParts, Sce
                 sc.robot.gravity,
                 &sc.model,
                 sc.belief.acceleration_bound,
+                sc.dt,
             );
             let hybrid = crate::estimation::hybrid::build(
                 uaic,
