@@ -887,15 +887,21 @@ mod tests {
     use crate::gp::GpModel;
     use crate::sensors::{CameraModel, Readings};
 
-    fn toy_hybrid() -> Hybrid {
+    /// The toy arm's nominal precisions: enc1, enc2, tach1, tach2, cam_u, cam_v.
+    const TOY_NOMINAL: [f64; 6] = [1e6, 1e6, 1e6, 1e6, 1e4, 1e4];
+
+    fn toy_hybrid_with(config: HybridConfig) -> Hybrid {
         let layout = ChannelLayout::new(2, CameraModel::Pinhole);
         let observation =
             crate::estimation::models::GpCamera::shared(layout, Arc::new(GpModel::toy()));
         let uaic = Uaic::new(UaicConfig::default(), observation.clone(), 1e-3);
         let ekf = Ekf::new(observation, 1e-3);
-        let nominal = [1e6, 1e6, 1e6, 1e6, 1e4, 1e4];
         let cv = Box::new(ConstantVelocity::new(2, 2.0));
-        Hybrid::new(uaic, ekf, cv, HybridConfig::default(), &nominal, 1e-6)
+        Hybrid::new(uaic, ekf, cv, config, &TOY_NOMINAL, 1e-6)
+    }
+
+    fn toy_hybrid() -> Hybrid {
+        toy_hybrid_with(HybridConfig::default())
     }
 
     /// The toy arm's readings while joint 1 accelerates at `a` rad/s^2 from 0.6 s on (a torque
@@ -905,17 +911,11 @@ mod tests {
         use rand::SeedableRng;
         use rand_distr::{Distribution, Normal};
         let layout = ChannelLayout::new(2, CameraModel::Pinhole);
-        let observation =
-            crate::estimation::models::GpCamera::shared(layout, Arc::new(GpModel::toy()));
-        let uaic = Uaic::new(UaicConfig::default(), observation.clone(), 1e-3);
-        let ekf = Ekf::new(observation, 1e-3);
-        let nominal = [1e6, 1e6, 1e6, 1e6, 1e4, 1e4];
-        let cv = Box::new(ConstantVelocity::new(2, 2.0));
-        let config = HybridConfig {
+        let nominal = TOY_NOMINAL;
+        let mut h = toy_hybrid_with(HybridConfig {
             actuators,
             ..HybridConfig::default()
-        };
-        let mut h = Hybrid::new(uaic, ekf, cv, config, &nominal, 1e-6);
+        });
         let mut rng = rand::rngs::StdRng::seed_from_u64(7);
         let noise = Normal::new(0.0, 1e-3).unwrap();
         let mut least = nominal.to_vec();
