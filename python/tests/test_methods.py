@@ -205,6 +205,9 @@ def test_a_failing_method_in_a_campaign_names_its_cell_seed_and_tick(tmp_path):
     notes = " ".join(getattr(info.value, "__notes__", []))
     assert "arm paper, cell" in notes and "seed 1" in notes and "at tick 100" in notes, notes
     assert not (tmp_path / "out").exists()
+    # No run of the failed method is kept for a resume.
+    journal = tmp_path / ".out.aift-journal"
+    assert not journal.exists() or '"Raises"' not in journal.read_text()
     with pytest.raises(aift.BadInput, match="must be a class"):
         aift.campaign(path, methods=[NominalPrecisions()])
     with pytest.raises(aift.BadInput, match="taken"):

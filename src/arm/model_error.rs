@@ -101,7 +101,9 @@ pub struct ModelConfig {
     /// How a model-based estimator predicts a tick: `explicit` (the acceleration at the tick's
     /// start) or `implicit` (damping and the friction ramp at its end, stable for any damping;
     /// measured in docs/method.md, "Model error": `explicit` stays the default until the
-    /// committed results are regenerated with `implicit`).
+    /// committed results are regenerated with `implicit`). Written only when not the default,
+    /// so that fingerprints of scenarios that do not set it stay as they were.
+    #[serde(skip_serializing_if = "PredictionStep::is_explicit")]
     pub step: PredictionStep,
 }
 
@@ -115,8 +117,14 @@ pub enum PredictionStep {
     #[default]
     Explicit,
     /// (M + dt D_eff) qdd = u - bias - D qd - F ramp(qd): damping (and friction inside its ramp)
-    /// at the tick's end ([`crate::arm::Dynamics::forward_dynamics_implicit`]).
+    /// at the tick's end (`Dynamics::forward_dynamics_implicit`).
     Implicit,
+}
+
+impl PredictionStep {
+    fn is_explicit(&self) -> bool {
+        *self == Self::Explicit
+    }
 }
 
 impl Default for ModelConfig {

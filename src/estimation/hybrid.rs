@@ -174,9 +174,13 @@ pub struct HybridConfig {
     /// process noise `actuator_broad` times the model's), and one hypothesis holds an external
     /// torque on every joint at once (a push, a payload, a contact), so that an unexpected
     /// acceleration is explained as a torque, not as sensors failing. Off by default: measured
-    /// in docs/method.md, it helps actuator faults and hurts tachometer spikes.
+    /// in docs/method.md, it helps actuator faults and hurts tachometer spikes. (This and
+    /// `actuator_broad` are written only when not the default, so that fingerprints of
+    /// scenarios that do not set them stay as they were.)
+    #[serde(skip_serializing_if = "is_false")]
     pub actuators: bool,
     /// An actuator hypothesis' process noise (standard deviation) as a multiple of the model's.
+    #[serde(skip_serializing_if = "is_default_actuator_broad")]
     pub actuator_broad: f64,
 }
 
@@ -246,6 +250,14 @@ impl HybridConfig {
         }
         Ok(())
     }
+}
+
+fn is_false(v: &bool) -> bool {
+    !*v
+}
+
+fn is_default_actuator_broad(v: &f64) -> bool {
+    *v == HybridConfig::default().actuator_broad
 }
 
 /// The hybrid's probability floor: 1e-300, against underflow only (the switching prior keeps
@@ -954,12 +966,13 @@ mod tests {
         let (joints, external) = h.failed_actuators();
         assert!(joints == vec![0] || external, "{joints:?} {external}");
         let (_, without) = accelerate(false, 200.0);
+        // Measured: tachometer 1's least precision 0.80 of nominal with, the floor without.
         for c in 0..4 {
-            assert!(least[c] > 0.5 * 1e6, "channel {c}: {}", least[c]);
+            assert!(least[c] > 0.75 * 1e6, "channel {c}: {}", least[c]);
         }
         assert!(
-            without[0].min(without[2]) < 0.1 * 1e6,
-            "without actuator hypotheses a sensor of joint 1 takes the blame: {without:?}"
+            without[2] < 0.1 * 1e6,
+            "without actuator hypotheses tachometer 1 takes the blame: {without:?}"
         );
         // Nothing unexpected: nothing blamed, with or without.
         for actuators in [true, false] {

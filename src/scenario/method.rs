@@ -268,17 +268,25 @@ impl Serialize for MethodId {
 impl<'de> Deserialize<'de> for MethodId {
     fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
         let name = String::deserialize(d)?;
+        if let Some(m) = Method::parse(&name) {
+            return Ok(Self::Builtin(m));
+        }
         check_external_name(&name).map_err(serde::de::Error::custom)?;
-        Ok(Self::from_name(&name))
+        Ok(Self::External(name))
     }
 }
 
 /// Longest name of a method the caller supplies.
 pub const MAX_EXTERNAL_NAME: usize = 64;
 
-/// Whether `name` can name a method the caller supplies (a built-in name is checked apart):
-/// 1 to 64 characters, letters, digits, `-`, `_`, `.` (it becomes a column, a key and a label).
+/// Whether `name` can name a method the caller supplies: 1 to 64 characters, letters, digits,
+/// `-`, `_`, `.` (it becomes a column, a key and a label), and no built-in method's name.
 pub fn check_external_name(name: &str) -> Result<(), String> {
+    if Method::parse(name).is_some() {
+        return Err(format!(
+            "{name:?} is a built-in method's name: give the method another"
+        ));
+    }
     if name.is_empty() || name.chars().count() > MAX_EXTERNAL_NAME {
         return Err(format!(
             "method name {name:?} must have 1 to {MAX_EXTERNAL_NAME} characters"
@@ -500,5 +508,10 @@ mod tests {
         assert!(serde_json::from_str::<MethodId>("\"\"").is_err());
         assert!(check_external_name(&"x".repeat(65)).is_err());
         assert!(check_external_name("my_kf.v2-1").is_ok());
+        assert!(
+            check_external_name("hybrid")
+                .unwrap_err()
+                .contains("built-in")
+        );
     }
 }

@@ -98,12 +98,6 @@ pub fn run_table_with(
             message,
         };
         super::method::check_external_name(&e.name).map_err(bad)?;
-        if Method::parse(&e.name).is_some() {
-            return Err(bad(format!(
-                "{:?} is a built-in method's name: give the method another",
-                e.name
-            )));
-        }
         if names.contains(&e.name) {
             return Err(ScenarioError::Invalid {
                 path: setup.loaded.path.clone(),

@@ -249,18 +249,23 @@ impl Campaign {
             let obstacle = contact.obstacle(from, to).expect("checked by check_cells");
             let plant = &mut s.loaded.scenario.plant;
             plant.engine = crate::plant::Engine::Rapier;
+            // The articulated engine's settings do not apply to rapier (its validation refuses
+            // them there).
+            plant.articulated = Default::default();
             plant.rapier.obstacles.push(obstacle);
         }
         s
     }
 
     /// The setup whose detector calibration a cell's detector methods use: the cell's, without
-    /// its table (the detector is calibrated on the arm's healthy runs, as for every other
-    /// disturbance: contact is what it must not mistake for a fault).
+    /// its obstacle (on the same engine: the detector is calibrated on the arm's healthy runs,
+    /// as for every other disturbance; contact is what it must not mistake for a fault).
     pub fn calibration_setup(&self, cell: &Cell) -> RunSetup {
-        let mut plain = cell.clone();
-        plain.contact = None;
-        self.cell_setup(&plain)
+        let mut s = self.cell_setup(cell);
+        if cell.contact.is_some() {
+            s.loaded.scenario.plant.rapier.obstacles.pop();
+        }
+        s
     }
 
     /// Every job in canonical order: (cell, method, seed index).
@@ -382,12 +387,6 @@ fn validate(config: &CampaignConfig, path: &Path) -> Result<Vec<MethodId>, Scena
     }
     for (i, name) in external.iter().enumerate() {
         super::method::check_external_name(name).map_err(|e| bad("external_methods", e))?;
-        if Method::parse(name).is_some() {
-            return Err(bad(
-                "external_methods",
-                format!("{name:?} is a built-in method's name: give the method another"),
-            ));
-        }
         if external[..i].contains(name) {
             return Err(bad("external_methods", format!("{name:?} is listed twice")));
         }
@@ -813,6 +812,21 @@ fn check_cells(
                 return Err(bad(
                     &field,
                     "needs a second target (the motion the obstacle stands in)".into(),
+                ));
+            }
+            // Rapier collides the arm's URDF collision shapes: without one on the end
+            // effector's body the arm would pass through the obstacle.
+            if !setup
+                .model
+                .colliders
+                .iter()
+                .any(|c| c.body == setup.ee.body)
+            {
+                return Err(bad(
+                    &field,
+                    "the end effector's link has no <collision> shape in the URDF: the arm \
+                     would pass through the obstacle"
+                        .into(),
                 ));
             }
             let (from, to) = last_motion(setup);

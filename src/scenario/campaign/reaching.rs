@@ -249,9 +249,16 @@ pub(super) fn run_reaching(
             campaign.config.arms[task.arm].name,
             task.task + 1
         );
-        let r = super::run::begin_run(&setup, m, 1, calibration.as_ref(), external, &place)?
-            .observe(&mut obs, ObserverMode::Always)
-            .execute()?;
+        let r = super::run::begin_run(
+            &setup,
+            m,
+            1,
+            calibration.as_ref(),
+            external,
+            (&place, &campaign.path),
+        )?
+        .observe(&mut obs, ObserverMode::Always)
+        .execute()?;
         let run = match &obs.authors {
             None => ReachingRun {
                 job,

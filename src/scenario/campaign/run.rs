@@ -169,7 +169,7 @@ pub(super) fn begin_run<'a>(
     seed: u64,
     calibration: Option<&'a Calibration>,
     external: &[ExternalMethod<'_>],
-    place: &str,
+    (place, campaign_path): (&str, &Path),
 ) -> Result<Run<'a>, ScenarioError> {
     let run = match method {
         MethodId::Builtin(m) => Run::new(setup, *m).calibration(calibration),
@@ -177,7 +177,7 @@ pub(super) fn begin_run<'a>(
             let e = external
                 .iter()
                 .find(|e| e.name == *name)
-                .ok_or_else(|| missing_external(&setup.loaded.path, name))?;
+                .ok_or_else(|| missing_external(campaign_path, name))?;
             Run::with_parts(setup, name, (e.build)(setup, seed, place)?)
         }
     };
@@ -207,6 +207,17 @@ fn check_externals(
     {
         return Err(missing_external(&campaign.path, name));
     }
+    if let Some((_, e)) = external
+        .iter()
+        .enumerate()
+        .find(|(i, e)| external[..*i].iter().any(|o| o.name == e.name))
+    {
+        return Err(ScenarioError::Invalid {
+            path: campaign.path.clone(),
+            field: "external_methods".into(),
+            message: format!("a method {:?} was given twice", e.name),
+        });
+    }
     if let Some(e) = external.iter().find(|e| !listed.contains(&e.name)) {
         return Err(ScenarioError::Invalid {
             path: campaign.path.clone(),
@@ -226,6 +237,7 @@ fn check_externals(
 fn contact_verdict(r: &RunResult, runaway: bool) -> Verdict {
     match r.outcome.name() {
         "diverged" => Verdict::Diverged,
+        _ if !r.max_final_error.is_finite() => Verdict::Diverged,
         "completed" if !runaway => Verdict::Recovered,
         _ => Verdict::Failed,
     }
@@ -265,9 +277,16 @@ fn run_job(
         "arm {}, cell {}",
         campaign.config.arms[cell.arm].name, cell.label
     );
-    let r = begin_run(setup, method, seed, calibration, external, &place)?
-        .observe(&mut recovery, ObserverMode::Always)
-        .execute()?;
+    let r = begin_run(
+        setup,
+        method,
+        seed,
+        calibration,
+        external,
+        (&place, &campaign.path),
+    )?
+    .observe(&mut recovery, ObserverMode::Always)
+    .execute()?;
     let mse_post = match &r.mse_post_fault_per_joint {
         Some(post) => joints.iter().map(|&j| post[j]).sum::<f64>() / joints.len() as f64,
         None => r.mse_per_joint.iter().sum::<f64>() / n as f64,
@@ -492,10 +511,15 @@ pub fn run_campaign_with(
                 return Err(e);
             }
             let started = std::time::Instant::now();
-            let setup = campaign.cell_setup(&campaign.cells[c]);
+            let cell = &campaign.cells[c];
+            let setup = campaign.cell_setup(cell);
             let cal = if m.needs_detector() {
-                let plain = campaign.calibration_setup(&campaign.cells[c]);
-                cals.get(&crate::scenario::fingerprint(&plain))
+                let key = if cell.contact.is_some() {
+                    crate::scenario::fingerprint(&campaign.calibration_setup(cell))
+                } else {
+                    crate::scenario::fingerprint(&setup)
+                };
+                cals.get(&key)
             } else {
                 None
             };
