@@ -229,13 +229,13 @@ fn every_method_holds_on_twenty_generated_arms_nobody_tuned_for() {
     let campaign = Campaign::load(&file, &[]).unwrap();
     let records = run_campaign(&campaign, Shard::WHOLE, None, &|_, _| {}).unwrap();
     let mut misses = Vec::new();
-    let mut alarms = std::collections::BTreeMap::<String, usize>::new();
+    let mut alarms = std::collections::BTreeMap::<aift::scenario::method::MethodId, usize>::new();
     let mut oracle_misses = std::collections::BTreeSet::new();
     for run in &records.runs {
         let cell = &campaign.cells[run.cell];
         let arm = &campaign.config.arms[cell.arm].name;
         if cell.is_healthy() {
-            *alarms.entry(run.method.to_string()).or_default() += run.false_alarms;
+            *alarms.entry(run.method.clone()).or_default() += run.false_alarms;
             if run.outcome != "completed" || run.max_final_error > 0.01 {
                 misses.push(format!(
                     "{arm} healthy {}: {} {:.4} rad",

@@ -713,7 +713,7 @@ impl PyFactories {
     }
 
     /// Whether a run of Python method `i` has failed (scans its runs' slots: called twice per
-    /// job, a lock per run so far; about 1e8 cheap locks over a 25 000-job campaign).
+    /// job, a lock per run of it so far, so quadratic in its runs; not measured).
     fn failed(&self, i: usize) -> bool {
         let name = &self.factories[i].0;
         self.failures

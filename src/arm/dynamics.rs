@@ -27,7 +27,7 @@ use std::sync::Arc;
 
 use nalgebra::{DMatrix, DVector, Isometry3, Matrix3, Matrix6, Vector3, Vector6};
 
-use super::{ArmModel, JointKind, kinematics};
+use super::{ArmModel, JointKind, JointSpec, kinematics};
 
 fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
     Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
@@ -247,17 +247,22 @@ impl Dynamics {
         out: &mut [f64],
     ) -> bool {
         self.compute(qd);
+        self.fill_rhs(qd, u, friction);
+        if !self.solve_damped(0.0) {
+            return false;
+        }
+        out.copy_from_slice(self.rhs.as_slice());
+        true
+    }
+
+    /// rhs = u - bias - D qd (- F ramp(qd) with smooth friction), from the last compute.
+    fn fill_rhs(&mut self, qd: &[f64], u: &[f64], friction: Friction) {
         for (i, joint) in self.model.joints.iter().enumerate() {
             self.rhs[i] = u[i] - self.bias[i] - joint.damping * qd[i];
             if friction == Friction::Smooth && joint.friction > 0.0 {
                 self.rhs[i] -= joint.friction * (qd[i] / FRICTION_RAMP).clamp(-1.0, 1.0);
             }
         }
-        if !self.solve_damped(0.0) {
-            return false;
-        }
-        out.copy_from_slice(self.rhs.as_slice());
-        true
     }
 
     /// As [`Self::forward_dynamics`] with the viscous damping, and the Coulomb friction on joints
@@ -276,32 +281,23 @@ impl Dynamics {
     ) -> bool {
         self.set_configuration(q);
         self.compute(qd);
-        let n = self.n_joints();
-        let mut storage = std::mem::replace(&mut self.factor, DMatrix::zeros(0, 0));
-        storage.copy_from(&self.m);
-        for (i, joint) in self.model.joints.iter().enumerate() {
-            self.rhs[i] = u[i] - self.bias[i] - joint.damping * qd[i];
+        self.fill_rhs(qd, u, Friction::Smooth);
+        let solved = self.solve_shifted(|i, joint| {
             let mut damping = joint.damping;
-            if joint.friction > 0.0 {
-                self.rhs[i] -= joint.friction * (qd[i] / FRICTION_RAMP).clamp(-1.0, 1.0);
-                if qd[i].abs() < FRICTION_RAMP {
-                    damping += joint.friction / FRICTION_RAMP;
-                }
+            if joint.friction > 0.0 && qd[i].abs() < FRICTION_RAMP {
+                damping += joint.friction / FRICTION_RAMP;
             }
-            storage[(i, i)] += h * damping;
+            h * damping
+        });
+        if solved {
+            out.copy_from_slice(self.rhs.as_slice());
         }
-        let Some(chol) = nalgebra::linalg::Cholesky::new(storage) else {
-            self.factor = DMatrix::zeros(n, n);
-            return false;
-        };
-        chol.solve_mut(&mut self.rhs);
-        self.factor = chol.unpack_dirty();
-        out.copy_from_slice(self.rhs.as_slice());
-        true
+        solved
     }
 
-    /// Solves M x = b in place with the factor of the last successful
-    /// [`Self::forward_dynamics`] (h = 0), without allocating or factoring again.
+    /// Solves A x = b in place with the factor of the last successful solve, without allocating
+    /// or factoring again: A = M after [`Self::forward_dynamics`], M + h D_eff after
+    /// [`Self::forward_dynamics_implicit`].
     pub fn solve_factored(&self, b: &mut [f64]) {
         let n = b.len();
         let l = &self.factor;
@@ -329,11 +325,17 @@ impl Dynamics {
     /// Solves (M + h D) x = rhs in place ([`Self::rhs_mut`] holds the right-hand side) with
     /// the mass matrix of the last [`Self::compute`], without allocating; false if singular.
     pub fn solve_damped(&mut self, h: f64) -> bool {
+        self.solve_shifted(|_, joint| h * joint.damping)
+    }
+
+    /// Solves (M + diag(shift(i, joint i))) x = rhs in place, without allocating; false if
+    /// singular.
+    fn solve_shifted(&mut self, shift: impl Fn(usize, &JointSpec) -> f64) -> bool {
         let n = self.n_joints();
         let mut storage = std::mem::replace(&mut self.factor, DMatrix::zeros(0, 0));
         storage.copy_from(&self.m);
         for (i, joint) in self.model.joints.iter().enumerate() {
-            storage[(i, i)] += h * joint.damping;
+            storage[(i, i)] += shift(i, joint);
         }
         let Some(chol) = nalgebra::linalg::Cholesky::new(storage) else {
             self.factor = DMatrix::zeros(n, n);

@@ -420,7 +420,7 @@ impl Hybrid {
 
     /// The hypotheses' probabilities by slot: the base (slot 0), the base with key k toggled
     /// (slot 1 + k; the keys are each encoder and tachometer, then the camera with
-    /// `camera = "bank"`), the base with its last failure swapped for key k (slot 1 + K + k; 0
+    /// `camera = "bank"`, then with `actuators` each joint's actuator and the external torque), the base with its last failure swapped for key k (slot 1 + K + k; 0
     /// while inactive). `failed_channels` says what the base holds.
     pub fn probabilities(&self) -> &[f64] {
         &self.bank.probability
@@ -446,7 +446,7 @@ impl Hybrid {
     /// torque.
     fn holds_torque_unknown(&self, j: usize, i: usize) -> bool {
         let (c, n) = (self.layout.len(), self.layout.n_joints());
-        self.config.actuators && (self.holds_failed(j, c + i) || self.holds_failed(j, c + n))
+        self.holds_failed(j, c + i) || self.holds_failed(j, c + n)
     }
 
     /// What slot j holds: the base, the base with one key toggled, or the base with its last

@@ -333,7 +333,7 @@ impl ContactEntry {
         })
     }
 
-    /// Checks its own fields (`field` names it in messages).
+    /// Checks its own fields; the message names the offending one.
     pub fn check(&self) -> Result<(), String> {
         if !(self.depth > 0.0 && self.depth <= 0.5) {
             return Err(format!("depth {} must be in (0, 0.5] m", self.depth));
