@@ -98,12 +98,10 @@ pub struct ModelConfig {
     /// The relative error a model-based estimator assumes for its predicted acceleration: each
     /// joint's process noise is max(`acceleration_noise`, this x |qdd|).
     pub relative_error: f64,
-    /// How a model-based estimator predicts a tick: `explicit` (the acceleration at the tick's
-    /// start) or `implicit` (damping and the friction ramp at its end, stable for any damping;
-    /// measured in docs/method.md, "Model error": `explicit` stays the default until the
-    /// committed results are regenerated with `implicit`). Written only when not the default,
-    /// so that fingerprints of scenarios that do not set it stay as they were.
-    #[serde(skip_serializing_if = "PredictionStep::is_explicit")]
+    /// How a model-based estimator predicts a tick: `implicit` (the default: damping and the
+    /// friction ramp at the tick's end, stable for any damping, as the articulated plant steps)
+    /// or `explicit` (the acceleration at the tick's start, the default until 2026-12-04;
+    /// measured in docs/method.md, "Model error").
     pub step: PredictionStep,
 }
 
@@ -114,17 +112,11 @@ pub struct ModelConfig {
 #[serde(rename_all = "kebab-case")]
 pub enum PredictionStep {
     /// qdd = M^-1 (u - bias - D qd - F ramp(qd)) at the tick's start.
-    #[default]
     Explicit,
     /// (M + dt D_eff) qdd = u - bias - D qd - F ramp(qd): damping (and friction inside its ramp)
     /// at the tick's end (`Dynamics::forward_dynamics_implicit`).
+    #[default]
     Implicit,
-}
-
-impl PredictionStep {
-    fn is_explicit(&self) -> bool {
-        *self == Self::Explicit
-    }
 }
 
 impl Default for ModelConfig {
@@ -141,7 +133,7 @@ impl Default for ModelConfig {
             joints: Vec::new(),
             acceleration_noise: 2.0,
             relative_error: 0.1,
-            step: PredictionStep::Explicit,
+            step: PredictionStep::Implicit,
         }
     }
 }

@@ -473,6 +473,15 @@ impl Hybrid {
         }
     }
 
+    /// The bank's probability that `key` failed: the sum over the active hypotheses that hold
+    /// it failed.
+    fn failure_probability(&self, key: usize) -> f64 {
+        (0..self.bank.len())
+            .filter(|&j| self.bank.active[j] && self.holds_failed(j, key))
+            .map(|j| self.bank.probability[j])
+            .sum()
+    }
+
     /// Whether hypothesis j holds channel `key` failed.
     fn holds_failed(&self, j: usize, key: usize) -> bool {
         let base = self.base_failed[key];
@@ -799,13 +808,7 @@ impl Estimator for Hybrid {
                     input.precisions[c]
                 }
                 _ if input.precisions[c] <= 0.0 => 0.0,
-                _ => {
-                    let failed: f64 = (0..self.bank.len())
-                        .filter(|&j| self.bank.active[j] && self.holds_failed(j, key))
-                        .map(|j| self.bank.probability[j])
-                        .sum();
-                    self.nominal[c] * (1.0 - failed).max(floor)
-                }
+                _ => self.nominal[c] * (1.0 - self.failure_probability(key)).max(floor),
             };
         }
         // When another hypothesis becomes the most probable, the belief is re-anchored on it
@@ -847,6 +850,11 @@ impl Estimator for Hybrid {
     }
     fn covariance(&self) -> Option<&DMatrix<f64>> {
         self.uaic.covariance()
+    }
+    fn actuator_failure_probability(&self, joint: usize) -> Option<f64> {
+        self.config
+            .actuators
+            .then(|| self.failure_probability(self.layout.len() + joint))
     }
 }
 

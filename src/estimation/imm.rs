@@ -305,7 +305,8 @@ mod tests {
         imm.predict_bank(&u);
         let mut direct = crate::arm::Dynamics::new(model, g);
         let mut acc = vec![0.0; 2];
-        assert!(direct.forward_dynamics(&x[..2], &x[2..], &u, &mut acc));
+        // The default step (`model.step = "implicit"`): damping at the tick's end.
+        assert!(direct.forward_dynamics_implicit(&x[..2], &x[2..], &u, dt, &mut acc));
         let (k, scale) = imm.manoeuvre.expect("a manoeuvre hypothesis by default");
         assert_eq!(k, imm.bank.len() - 1);
         for (j, f) in imm.bank.filters.iter().enumerate() {

@@ -849,7 +849,8 @@ mod tests {
         );
         let mut direct = crate::arm::Dynamics::new(model, g);
         let mut expected = vec![0.0; 2];
-        assert!(direct.forward_dynamics(&q, &qd, &u, &mut expected));
+        // The default step (`model.step = "implicit"`): damping at the tick's end.
+        assert!(direct.forward_dynamics_implicit(&q, &qd, &u, 1e-3, &mut expected));
         let t = prediction.evaluate(&x, &u);
         assert_eq!(t.acceleration.unwrap(), expected.as_slice());
         for (s, a) in t.noise.iter().zip(&expected) {

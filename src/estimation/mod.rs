@@ -94,4 +94,9 @@ pub trait Estimator: Send {
     fn covariance(&self) -> Option<&DMatrix<f64>> {
         None
     }
+    /// The estimator's probability that joint `joint`'s actuator failed: `None` when it infers
+    /// no actuator health (every estimator but the hybrid with `hybrid.actuators`).
+    fn actuator_failure_probability(&self, _joint: usize) -> Option<f64> {
+        None
+    }
 }

@@ -210,7 +210,10 @@ pub fn replay(
         seed,
         outcome,
         &unknown,
-        (precision.detection(), None),
+        crate::scenario::metrics::RunDetectors {
+            detection: precision.detection(),
+            ..Default::default()
+        },
         wall_seconds,
     );
     Ok((result, info))

@@ -95,19 +95,7 @@ pub fn summary_json(setup: &RunSetup, result: &RunResult) -> serde_json::Value {
             "isolation_correct": f.isolation_correct,
             "mse_during": f.mse_during,
         })).collect::<Vec<_>>(),
-        "actuator_faults": result.actuator_faults.iter().map(|f| json!({
-            "joint": f.label,
-            "kind": f.kind,
-            "start": f.start,
-            "end": f.end,
-            "joints": f.joints.iter().map(|j| j + 1).collect::<Vec<_>>(),
-            "sensor_alarms": f.sensor_alarms,
-            "mse_during": f.mse_during,
-            "momentum_detected_at": f.momentum_detected_at,
-            "momentum_delay": f.momentum_delay,
-            "momentum_isolated": f.momentum_joint.map(|j| format!("motor{}", j + 1)),
-            "momentum_isolation_correct": f.momentum_isolation_correct,
-        })).collect::<Vec<_>>(),
+        "actuator_faults": result.actuator_faults.iter().map(actuator_fault_json).collect::<Vec<_>>(),
         "disturbances": result.disturbances.iter().map(|d| json!({
             "disturbance": d.label,
             "kind": d.kind,
@@ -124,6 +112,12 @@ pub fn summary_json(setup: &RunSetup, result: &RunResult) -> serde_json::Value {
                 "t": t, "joint": format!("motor{}", j + 1),
             })).collect::<Vec<_>>(),
             "false_alarms": m.false_alarms,
+        })),
+        "actuator_alarms": result.actuator_alarms.as_ref().map(|a| json!({
+            "alarms": a.iter().map(|(t, j)| json!({
+                "t": t, "joint": format!("motor{}", j + 1),
+            })).collect::<Vec<_>>(),
+            "false_alarms": result.actuator_false_alarms,
         })),
         "final_health": per_channel(&result.final_health),
         "min_health_last_5s": per_channel(&result.min_health_last_5s),
@@ -393,4 +387,25 @@ pub fn run_in_memory(
     drop(observers);
     let summary = summary_json(setup, &result);
     Ok((result, summary, columns))
+}
+
+/// One actuator fault's entry of `metrics.json` (joints and motors 1-based).
+fn actuator_fault_json(f: &crate::scenario::ActuatorOutcome) -> serde_json::Value {
+    json!({
+        "joint": f.label,
+        "kind": f.kind,
+        "start": f.start,
+        "end": f.end,
+        "joints": f.joints.iter().map(|j| j + 1).collect::<Vec<_>>(),
+        "sensor_alarms": f.sensor_alarms,
+        "mse_during": f.mse_during,
+        "momentum_detected_at": f.momentum_detected_at,
+        "momentum_delay": f.momentum_delay,
+        "momentum_isolated": f.momentum_joint.map(|j| format!("motor{}", j + 1)),
+        "momentum_isolation_correct": f.momentum_isolation_correct,
+        "method_detected_at": f.method_detected_at,
+        "method_delay": f.method_delay,
+        "method_isolated": f.method_joint.map(|j| format!("motor{}", j + 1)),
+        "method_isolation_correct": f.method_isolation_correct,
+    })
 }

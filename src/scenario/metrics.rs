@@ -28,6 +28,8 @@ pub const MAX_DETECTIONS: usize = 10_000;
 /// Health events room is made for at the start of a run, so that the first ones do not
 /// allocate inside the loop (more grow the list, up to [`MAX_DETECTIONS`]).
 const HEALTH_EVENTS_RESERVED: usize = 64;
+/// The same for a method's own actuator alarms (`Simulation::actuator_alarms`).
+pub const ACTUATOR_ALARMS_RESERVED: usize = 16;
 
 /// Grace after a fault ends during which a detection is not a false alarm (s).
 pub const FALSE_ALARM_GRACE: f64 = 1.0;
@@ -85,6 +87,12 @@ pub struct ActuatorOutcome {
     pub momentum_joint: Option<usize>,
     /// Whether that joint is one of the fault's.
     pub momentum_isolation_correct: Option<bool>,
+    /// The method's own first actuator alarm from its start (before its end), when the method
+    /// infers actuator health (the hybrid with `hybrid.actuators`); the same four as above.
+    pub method_detected_at: Option<f64>,
+    pub method_delay: Option<f64>,
+    pub method_joint: Option<usize>,
+    pub method_isolation_correct: Option<bool>,
 }
 
 /// How one disturbance (payload, push) went: the alarms it drew. Neither a sensor nor an
@@ -114,6 +122,17 @@ pub struct MomentumSummary {
     pub alarms: Vec<(f64, usize)>,
     /// Alarms while no actuator fault acted (nor within [`FALSE_ALARM_GRACE`] after one).
     pub false_alarms: usize,
+}
+
+/// What looked for faults during a run, for [`RunMetrics::finish`].
+#[derive(Clone, Copy, Default)]
+pub struct RunDetectors<'a> {
+    /// The precision method's detector, when it runs one.
+    pub detection: Option<&'a Detection>,
+    /// The momentum observer, when the scenario runs it.
+    pub momentum: Option<&'a crate::precision::MomentumMonitor>,
+    /// The method's own actuator alarms (tick, joint), when it infers actuator health.
+    pub actuator_alarms: Option<&'a [(u64, usize)]>,
 }
 
 /// The numbers of one run.
@@ -161,6 +180,11 @@ pub struct RunResult {
     pub disturbances: Vec<DisturbanceOutcome>,
     /// The momentum observer's findings, when it runs.
     pub momentum: Option<MomentumSummary>,
+    /// The method's own actuator alarms (time in s, joint 0-based), when it infers actuator
+    /// health (the hybrid with `hybrid.actuators`); `None` for every other method.
+    pub actuator_alarms: Option<Vec<(f64, usize)>>,
+    /// Those of them while no actuator fault acted (nor within [`FALSE_ALARM_GRACE`] after one).
+    pub actuator_false_alarms: usize,
     /// The largest force the obstacles exerted on the arm (N; 0 without contact).
     pub max_contact_normal_force: f64,
     /// Health per channel at the end.
@@ -221,9 +245,7 @@ pub struct RunMetrics {
     health: Vec<f64>,
     /// Health-based detections (methods without a detector), with each channel's arming.
     health_events: Vec<(u64, usize)>,
-    armed: Vec<bool>,
-    below_since: Vec<Option<u64>>,
-    dwell: u64,
+    alarms: Vec<HealthAlarm>,
     ticks_run: u64,
 }
 
@@ -321,9 +343,7 @@ impl RunMetrics {
             min_health_last: vec![1.0; layout.len()],
             health: nominal.iter().map(|_| 1.0).collect(),
             health_events: Vec::with_capacity(HEALTH_EVENTS_RESERVED),
-            armed: vec![true; layout.len()],
-            below_since: vec![None; layout.len()],
-            dwell: ((DETECTION_DWELL / dt).round() as u64).max(1),
+            alarms: vec![HealthAlarm::new(dt); layout.len()],
             ticks_run: 0,
         }
     }
@@ -336,12 +356,14 @@ impl RunMetrics {
         seed: u64,
         outcome: Outcome,
         q_final: &[f64],
-        (detection, momentum): (
-            Option<&Detection>,
-            Option<&crate::precision::MomentumMonitor>,
-        ),
+        found: RunDetectors<'_>,
         wall_seconds: f64,
     ) -> RunResult {
+        let RunDetectors {
+            detection,
+            momentum,
+            actuator_alarms,
+        } = found;
         let n = self.layout.n_joints();
         let dt = self.dt;
         let count = self.ticks_run.max(1) as f64;
@@ -382,7 +404,8 @@ impl RunMetrics {
         let momentum_alarms: Vec<(u64, usize)> = momentum
             .map(|m| m.alarms().iter().map(|a| (a.tick, a.joint)).collect())
             .unwrap_or_default();
-        let actuator_faults = self.actuator_outcomes(&events, &momentum_alarms);
+        let actuator_faults =
+            self.actuator_outcomes(&events, &momentum_alarms, actuator_alarms.unwrap_or(&[]));
         let within = |alarms: &mut dyn Iterator<Item = u64>, d: &crate::plant::Disturbance| {
             let grace = (FALSE_ALARM_GRACE / dt).round() as u64;
             let start = crate::tick_at(d.start, dt);
@@ -403,6 +426,7 @@ impl RunMetrics {
                 momentum_alarms: within(&mut momentum_alarms.iter().map(|(k, _)| *k), d),
             })
             .collect();
+        let actuator_false_alarms = actuator_alarms.map_or(0, |a| self.outside_actuator_faults(a));
         let momentum = momentum.map(|m| MomentumSummary {
             thresholds: m.thresholds().map(<[f64]>::to_vec),
             largest: m.largest().to_vec(),
@@ -410,7 +434,7 @@ impl RunMetrics {
                 .iter()
                 .map(|&(k, j)| (k as f64 * dt, j))
                 .collect(),
-            false_alarms: self.momentum_false_alarms(&momentum_alarms),
+            false_alarms: self.outside_actuator_faults(&momentum_alarms),
         });
         let detections = events
             .iter()
@@ -444,6 +468,9 @@ impl RunMetrics {
             actuator_faults,
             disturbances,
             momentum,
+            actuator_false_alarms,
+            actuator_alarms: actuator_alarms
+                .map(|a| a.iter().map(|&(k, j)| (k as f64 * dt, j)).collect()),
             max_contact_normal_force: 0.0,
             final_health: self.health,
             min_health_last_5s: self.min_health_last,
@@ -516,28 +543,39 @@ impl RunMetrics {
     }
 
     /// How each actuator fault went: the sensor alarms within it (and the grace after), the
-    /// belief's MSE on its joints.
+    /// belief's MSE on its joints, the first alarm of the momentum observer and of the method's
+    /// own actuator hypotheses within it.
     fn actuator_outcomes(
         &self,
         events: &[(u64, Vec<usize>)],
         momentum: &[(u64, usize)],
+        method: &[(u64, usize)],
     ) -> Vec<ActuatorOutcome> {
         let grace = (FALSE_ALARM_GRACE / self.dt).round() as u64;
         let dt = self.dt;
+        let first_within = |alarms: &[(u64, usize)], w: &FaultWindow| {
+            alarms
+                .iter()
+                .find(|(k, _)| *k >= w.start && w.end.is_none_or(|e| *k < e))
+                .copied()
+        };
         self.actuator_faults
             .iter()
             .zip(&self.actuator_windows)
             .map(|(f, w)| {
-                let hit = momentum
-                    .iter()
-                    .find(|(k, _)| *k >= w.start && w.end.is_none_or(|e| *k < e));
-                (f, w, hit)
+                let hit = first_within(momentum, w);
+                let own = first_within(method, w);
+                (f, w, hit, own)
             })
-            .map(|(f, w, hit)| ActuatorOutcome {
-                momentum_detected_at: hit.map(|(k, _)| *k as f64 * dt),
-                momentum_delay: hit.map(|(k, _)| (*k - w.start) as f64 * dt),
-                momentum_joint: hit.map(|(_, j)| *j),
-                momentum_isolation_correct: hit.map(|(_, j)| f.joints.contains(j)),
+            .map(|(f, w, hit, own)| ActuatorOutcome {
+                momentum_detected_at: hit.map(|(k, _)| k as f64 * dt),
+                momentum_delay: hit.map(|(k, _)| (k - w.start) as f64 * dt),
+                momentum_joint: hit.map(|(_, j)| j),
+                momentum_isolation_correct: hit.map(|(_, j)| f.joints.contains(&j)),
+                method_detected_at: own.map(|(k, _)| k as f64 * dt),
+                method_delay: own.map(|(k, _)| (k - w.start) as f64 * dt),
+                method_joint: own.map(|(_, j)| j),
+                method_isolation_correct: own.map(|(_, j)| f.joints.contains(&j)),
                 label: f.label.clone(),
                 kind: f.kind.name(),
                 start: f.start,
@@ -552,8 +590,9 @@ impl RunMetrics {
             .collect()
     }
 
-    /// Momentum alarms while no actuator fault acts (nor within the grace after one ended).
-    fn momentum_false_alarms(&self, alarms: &[(u64, usize)]) -> usize {
+    /// Actuator alarms (the momentum observer's or the method's) while no actuator fault acts
+    /// (nor within the grace after one ended).
+    fn outside_actuator_faults(&self, alarms: &[(u64, usize)]) -> usize {
         let grace = (FALSE_ALARM_GRACE / self.dt).round() as u64;
         alarms
             .iter()
@@ -621,26 +660,56 @@ impl Observer for RunMetrics {
         for (c, (w, nom)) in r.precisions.iter().zip(r.nominal).enumerate() {
             let h = precision::health(*w, *nom);
             self.health[c] = h;
-            if self.armed[c] {
-                if h < DETECTION_HEALTH {
-                    let since = *self.below_since[c].get_or_insert(k);
-                    if k + 1 - since >= self.dwell {
-                        self.armed[c] = false;
-                        if self.health_events.len() < MAX_DETECTIONS {
-                            self.health_events.push((since, c));
-                        }
-                    }
-                } else {
-                    self.below_since[c] = None;
-                }
-            } else if h > RECOVERY_HEALTH {
-                self.armed[c] = true;
-                self.below_since[c] = None;
+            if let Some(since) = self.alarms[c].update(k, h)
+                && self.health_events.len() < MAX_DETECTIONS
+            {
+                self.health_events.push((since, c));
             }
             if k >= self.last_5s_from {
                 self.min_health_last[c] = self.min_health_last[c].min(h);
             }
         }
+    }
+}
+
+/// The alarm rule on a health in [0, 1] (a channel's precision over its nominal, or one minus a
+/// method's probability that an actuator failed): an alarm once it stays below
+/// [`DETECTION_HEALTH`] for [`DETECTION_DWELL`], dated at the first tick below; re-armed once it
+/// rises above [`RECOVERY_HEALTH`].
+#[derive(Clone, Debug)]
+pub struct HealthAlarm {
+    armed: bool,
+    below_since: Option<u64>,
+    dwell: u64,
+}
+
+impl HealthAlarm {
+    /// Armed, for ticks of `dt` seconds.
+    pub fn new(dt: f64) -> Self {
+        Self {
+            armed: true,
+            below_since: None,
+            dwell: ((DETECTION_DWELL / dt).round() as u64).max(1),
+        }
+    }
+
+    /// Feeds tick `k`'s health; returns the alarm's tick when one completes.
+    pub fn update(&mut self, k: u64, health: f64) -> Option<u64> {
+        if self.armed {
+            if health < DETECTION_HEALTH {
+                let since = *self.below_since.get_or_insert(k);
+                if k + 1 - since >= self.dwell {
+                    self.armed = false;
+                    return Some(since);
+                }
+            } else {
+                self.below_since = None;
+            }
+        } else if health > RECOVERY_HEALTH {
+            self.armed = true;
+            self.below_since = None;
+        }
+        None
     }
 }
 

@@ -12,7 +12,10 @@
 use std::time::Instant;
 
 use super::method::MethodParts;
-use super::metrics::{ChatterMonitor, DivergenceGuard, RunMetrics, RunResult};
+use super::metrics::{
+    ACTUATOR_ALARMS_RESERVED, ChatterMonitor, DivergenceGuard, HealthAlarm, MAX_DETECTIONS,
+    RunDetectors, RunMetrics, RunResult,
+};
 use super::{Method, RunSetup, ScenarioError};
 use crate::control::{BeliefTiming, Control};
 use crate::estimation::{Estimate, Estimator, EstimatorInput};
@@ -302,6 +305,10 @@ pub struct Simulation {
     /// "previous"`).
     previous_mu: Vec<f64>,
     previous_mu_p: Vec<f64>,
+    /// The alarm rule on each actuator's health under the method's actuator hypotheses (when
+    /// it has any), and its alarms: tick and joint.
+    actuator_health: Vec<HealthAlarm>,
+    actuator_alarms: Vec<(u64, usize)>,
     tick: u64,
     decided: bool,
 }
@@ -398,6 +405,8 @@ impl Simulation {
             free_energy: f64::NAN,
             previous_mu: vec![0.0; n],
             previous_mu_p: vec![0.0; n],
+            actuator_health: vec![HealthAlarm::new(setup.scenario().dt); n],
+            actuator_alarms: Vec::with_capacity(ACTUATOR_ALARMS_RESERVED),
             tick: 0,
             decided: false,
         })
@@ -486,6 +495,16 @@ impl Simulation {
         });
         let finite = estimate.finite;
         let belief_energy = estimate.free_energy;
+        for (i, alarm) in self.actuator_health.iter_mut().enumerate() {
+            let Some(failed) = self.estimator.actuator_failure_probability(i) else {
+                break;
+            };
+            if let Some(since) = alarm.update(k, 1.0 - failed)
+                && self.actuator_alarms.len() < MAX_DETECTIONS
+            {
+                self.actuator_alarms.push((since, i));
+            }
+        }
         let target = &self.targets[self.target].1;
         let (mu, mu_p) = if previous {
             (&self.previous_mu[..], &self.previous_mu_p[..])
@@ -595,6 +614,14 @@ impl Simulation {
     /// The momentum observer, when the scenario runs one.
     pub fn momentum(&self) -> Option<&crate::precision::MomentumMonitor> {
         self.momentum.as_ref()
+    }
+
+    /// The method's own actuator alarms (tick, joint: an actuator's health, one minus the
+    /// method's probability that it failed, under the channels' alarm rule, `HealthAlarm`; at
+    /// most [`MAX_DETECTIONS`]), or `None` when the method infers no actuator health.
+    pub fn actuator_alarms(&self) -> Option<&[(u64, usize)]> {
+        (self.estimator.actuator_failure_probability(0).is_some())
+            .then_some(self.actuator_alarms.as_slice())
     }
 }
 
@@ -766,7 +793,11 @@ impl<'a> Run<'a> {
             seed,
             outcome,
             &q,
-            (sim.detection(), sim.momentum()),
+            RunDetectors {
+                detection: sim.detection(),
+                momentum: sim.momentum(),
+                actuator_alarms: sim.actuator_alarms(),
+            },
             wall_seconds,
         );
         result.max_contact_normal_force = max_contact_normal_force;

@@ -316,10 +316,16 @@ fn run_job(
         !e.is_finite() || e > campaign.config.verdict.runaway
     }) || at_limit(setup, &r.q_final, &lost);
     let first = r.faults.first();
-    // Actuator cells: the momentum observer's detection (None when it does not run).
+    // Actuator cells: the method's own detection when it infers actuator health (the hybrid
+    // with `hybrid.actuators`), else the momentum observer's (None when neither runs).
     let actuator = r.actuator_faults.first();
     let (detected, delay, isolation_correct) = match (first, actuator) {
         (Some(f), _) => (Some(f.detected_at.is_some()), f.delay, f.isolation_correct),
+        (None, Some(a)) if r.actuator_alarms.is_some() => (
+            Some(a.method_detected_at.is_some()),
+            a.method_delay,
+            a.method_isolation_correct,
+        ),
         (None, Some(a)) if r.momentum.is_some() => (
             Some(a.momentum_detected_at.is_some()),
             a.momentum_delay,
@@ -345,7 +351,8 @@ fn run_job(
         detected,
         delay,
         isolation_correct,
-        false_alarms: r.false_alarms,
+        // A method's own actuator alarms outside actuator faults are false alarms too.
+        false_alarms: r.false_alarms + r.actuator_false_alarms,
         hours: r.ticks_run as f64 * dt / 3600.0,
         recover_time: if cell.is_healthy() {
             None
