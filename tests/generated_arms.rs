@@ -163,20 +163,21 @@ fn the_evaluation_campaign_is_generated_arms_apart_from_development() {
 }
 
 /// The property the issue on arms users bring asks for, on 20 generated arms (generator seeds
-/// 70001 on; seeds `init` refuses are counted and skipped, at most 4; no tuning used them until
-/// 2026-12-04, when 70003, 70015 and 70016, then refused, were looked at to design `init`'s
-/// friction rule: move the range when this test next changes): each arm's `init` scenario, healthy, under every method on the articulated engine with
-/// the erred model (15 s, one seed): every run completes (no divergence, no chattering) and
-/// every joint ends within 0.01 rad of its target; neither the hybrid nor the oracle raises an
-/// alarm. An encoder freeze on a random joint of each arm (at 8 s, while it moves): the hybrid
-/// recovers (within the campaign's 0.02 rad) wherever the oracle does. What it does not assert
-/// yet, with the numbers it prints: the other methods' false alarms and the oracle's own
-/// misses (docs/arms.md, "Arms nobody tuned for").
+/// 71001 on, a range no screen and no tuning used; seeds `init` refuses are counted and skipped,
+/// at most 4; the range before, 70001.., was looked at to design `init`'s friction rule): each
+/// arm's `init` scenario, healthy, under every method on the articulated engine with the erred
+/// model (15 s, one seed): every run completes (no divergence, no chattering) and every joint
+/// ends within 0.01 rad of its target; neither the hybrid nor the oracle raises an alarm. An
+/// encoder freeze on a random joint of each arm (at 8 s, while it moves): the hybrid recovers
+/// (within the campaign's 0.02 rad) wherever the oracle does. What it does not assert, with the
+/// numbers it prints: the other methods' false alarms and the oracle's own misses
+/// (docs/arms.md, "Arms nobody tuned for").
 ///
-/// Opt-in (`cargo test --release --test generated_arms -- --ignored`): it misses today, and it
-/// takes 4-20 minutes on two cores (20 arms' `init`, camera models and detector calibrations,
-/// 11 methods). Measured 2026-12-04 after the friction rule (docs/arms.md): the hybrid raises 19
-/// alarms on 10 of the 20 healthy arms and fails one freeze of the 18 the oracle recovers.
+/// Opt-in (`cargo test --release --test generated_arms -- --ignored`): it takes 4-20 minutes on
+/// two cores (20 arms' `init`, camera models and detector calibrations, 11 methods), and it
+/// misses on the hybrid's false alarms: on 71001.. with the implicit model step 8 alarms on 5
+/// of the 20 healthy arms, everything else held (docs/arms.md; on 70001.. with the explicit
+/// step 19 on 10).
 #[test]
 #[ignore = "opt-in: misses today and takes 4-20 minutes (docs/arms.md, \"Arms nobody tuned for\")"]
 fn every_method_holds_on_twenty_generated_arms_nobody_tuned_for() {
@@ -186,10 +187,10 @@ fn every_method_holds_on_twenty_generated_arms_nobody_tuned_for() {
     let mut arms = String::new();
     let mut refused = Vec::new();
     let mut draw = 0x9e37_79b9_7f4a_7c15u64;
-    let mut seed = 70_001u64;
+    let mut seed = 71_001u64;
     let mut count = 0;
     while count < 20 {
-        assert!(seed < 70_025, "init refused {refused:?}");
+        assert!(seed < 71_025, "init refused {refused:?}");
         let name = format!("arm{seed}");
         let (scenario, init) = generate_and_init(seed, tmp.path());
         let urdf = scenario.with_extension("urdf");
