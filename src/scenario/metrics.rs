@@ -63,8 +63,9 @@ pub struct FaultOutcome {
     pub mse_during: Option<f64>,
 }
 
-/// How one actuator fault of the scenario went, for methods that judge sensors only: the
-/// sensor alarms it drew (each one a misattribution) and the belief's error while it acted.
+/// How one actuator fault of the scenario went: the sensor alarms it drew (each one a
+/// misattribution), the belief's error while it acted, and the first actuator alarm of the
+/// momentum observer and of the method itself (each when it runs).
 #[derive(Clone, Debug, PartialEq)]
 pub struct ActuatorOutcome {
     /// `motor2`, `motor1+motor3`.
@@ -90,8 +91,11 @@ pub struct ActuatorOutcome {
     /// The method's own first actuator alarm from its start (before its end), when the method
     /// infers actuator health (the hybrid with `hybrid.actuators`); the same four as above.
     pub method_detected_at: Option<f64>,
+    /// Seconds from the fault's start to that alarm.
     pub method_delay: Option<f64>,
+    /// The joint (0-based) that alarm named.
     pub method_joint: Option<usize>,
+    /// Whether that joint is one of the fault's.
     pub method_isolation_correct: Option<bool>,
 }
 
