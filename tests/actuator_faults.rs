@@ -340,17 +340,8 @@ fn the_hybrid_detects_and_isolates_actuator_faults_with_its_own_hypotheses() {
         .execute()
         .unwrap();
     assert_eq!(r.actuator_alarms, None);
-    for (joint, kind) in [
-        (4, "kind = \"locked\""),
-        (2, "kind = \"effectiveness\"\nfactor = 0.2"),
-        (6, "kind = \"dead\""),
-    ] {
-        let fault = format!("[[actuator_faults]]\njoint = {joint}\nstart = 7.6\n{kind}");
-        let setup = common::with_faults("panda_healthy.toml", &[&fault], &on);
-        let r = aift::scenario::Run::new(&setup, Method::Hybrid)
-            .seed(31)
-            .execute()
-            .unwrap();
+    for (joint, kind) in common::PANDA_ACTUATOR_FAULTS {
+        let r = common::panda_actuator_fault_run(joint, kind, &on, Method::Hybrid, 31);
         let a = &r.actuator_faults[0];
         eprintln!(
             "joint {joint} {kind}: detected {:?} delay {:?} joint {:?}; alarms {:?}",

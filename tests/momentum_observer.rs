@@ -128,17 +128,8 @@ fn actuator_faults_are_detected_and_isolated_without_healthy_alarms() {
         let m = r.momentum.unwrap();
         assert!(m.alarms.is_empty(), "healthy seed {seed}: {:?}", m.alarms);
     }
-    for (joint, kind) in [
-        (4, "kind = \"locked\""),
-        (2, "kind = \"effectiveness\"\nfactor = 0.2"),
-        (6, "kind = \"dead\""),
-    ] {
-        let fault = format!("[[actuator_faults]]\njoint = {joint}\nstart = 7.6\n{kind}");
-        let setup = common::with_faults("panda_healthy.toml", &[&fault], &on);
-        let r = aift::scenario::Run::new(&setup, Method::NoFt)
-            .seed(11)
-            .execute()
-            .unwrap();
+    for (joint, kind) in common::PANDA_ACTUATOR_FAULTS {
+        let r = common::panda_actuator_fault_run(joint, kind, &on, Method::NoFt, 11);
         let a = &r.actuator_faults[0];
         eprintln!(
             "joint {joint} {kind}: detected {:?} delay {:?} joint {:?}; largest {:?}",

@@ -620,7 +620,9 @@ impl Simulation {
     /// method's probability that it failed, under the channels' alarm rule, `HealthAlarm`; at
     /// most [`MAX_DETECTIONS`]), or `None` when the method infers no actuator health.
     pub fn actuator_alarms(&self) -> Option<&[(u64, usize)]> {
-        (self.estimator.actuator_failure_probability(0).is_some())
+        self.estimator
+            .actuator_failure_probability(0)
+            .is_some()
             .then_some(self.actuator_alarms.as_slice())
     }
 }

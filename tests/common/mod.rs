@@ -331,3 +331,28 @@ pub fn rapier(file: &str) -> Box<dyn aift::plant::Plant> {
         2,
     )
 }
+
+/// The Panda actuator faults both detectors are checked on (joint, the fault's kind lines), each
+/// starting at 7.6 s, during the motion to the second target.
+pub const PANDA_ACTUATOR_FAULTS: [(usize, &str); 3] = [
+    (4, "kind = \"locked\""),
+    (2, "kind = \"effectiveness\"\nfactor = 0.2"),
+    (6, "kind = \"dead\""),
+];
+
+/// One run of the Panda's healthy template with an actuator fault on `joint` (1-based) from
+/// 7.6 s, `kind` its kind lines, under `overrides`.
+pub fn panda_actuator_fault_run(
+    joint: usize,
+    kind: &str,
+    overrides: &[&str],
+    method: aift::scenario::Method,
+    seed: u64,
+) -> aift::scenario::RunResult {
+    let fault = format!("[[actuator_faults]]\njoint = {joint}\nstart = 7.6\n{kind}");
+    let setup = with_faults("panda_healthy.toml", &[&fault], overrides);
+    aift::scenario::Run::new(&setup, method)
+        .seed(seed)
+        .execute()
+        .unwrap()
+}
