@@ -180,6 +180,46 @@ fn payload_and_push_in_the_closed_loop() {
     }
 }
 
+/// The hybrid's own actuator alarms (`hybrid.actuators`) during a payload or a push are counted
+/// per disturbance, over the same window as the sensor alarms, and as false actuator alarms (no
+/// actuator is at fault): each count is the number of the run's actuator alarms in its window.
+#[test]
+fn actuator_alarms_during_disturbances_are_counted_as_false() {
+    let d = "[[disturbances]]\nkind = \"payload\"\nlink = \"ee\"\nstart = 3.0\nmass = 0.5\n\n\
+             [[disturbances]]\nkind = \"push\"\nlink = \"panda_link4\"\nstart = 5.0\nend = 5.3\n\
+             force = [60.0, 0.0, 0.0]";
+    let setup = common::with_faults(
+        "panda_healthy.toml",
+        &[d],
+        &[
+            "duration=10.0",
+            "plant.engine=\"articulated\"",
+            "hybrid.actuators=true",
+        ],
+    );
+    let grace = aift::scenario::metrics::FALSE_ALARM_GRACE;
+    for seed in [21, 22] {
+        let r = aift::scenario::Run::new(&setup, Method::Hybrid)
+            .seed(seed)
+            .execute()
+            .unwrap();
+        let alarms = r
+            .actuator_alarms
+            .as_ref()
+            .expect("the hybrid infers actuators");
+        eprintln!("seed {seed}: actuator alarms {alarms:?}");
+        assert_eq!(r.actuator_false_alarms, alarms.len());
+        for d in &r.disturbances {
+            let end = d.end.map_or(f64::INFINITY, |e| e + grace);
+            let inside = alarms
+                .iter()
+                .filter(|(t, _)| *t >= d.start - 1e-9 && *t < end - 1e-9)
+                .count();
+            assert_eq!(d.actuator_alarms, inside, "seed {seed}: {}", d.label);
+        }
+    }
+}
+
 #[test]
 fn bad_disturbances_are_refused_naming_the_key() {
     let cases = [

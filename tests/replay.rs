@@ -83,6 +83,55 @@ fn a_replayed_run_gives_its_belief_and_detections() {
     assert!(d.join("from-mcap/report.html").is_file());
 }
 
+/// A method's own actuator alarms (the hybrid with `hybrid.actuators`) are replayed too: the
+/// Panda with a locked joint, live and from its trajectory.csv (readings and applied torques),
+/// gives the same alarms, and they name the locked motor.
+#[test]
+fn a_replayed_run_gives_its_actuator_alarms() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let (joint, kind) = common::PANDA_ACTUATOR_FAULTS[0];
+    let text = common::scenario_text("panda_healthy.toml")
+        .replace("duration = 15.0", "duration = 9.0")
+        + &format!("\n[[actuator_faults]]\njoint = {joint}\nstart = 7.6\n{kind}\n");
+    std::fs::write(d.join("s.toml"), text).unwrap();
+    let set = [
+        "--set",
+        "hybrid.actuators=true",
+        "--set",
+        "plant.engine=\"articulated\"",
+    ];
+    let run = |args: &[&str]| {
+        let mut all = args.to_vec();
+        all.extend_from_slice(&set);
+        common::aift_ok(&all, d);
+    };
+    run(&[
+        "run", "s.toml", "--method", "hybrid", "--seed", "5", "--out", "live",
+    ]);
+    run(&[
+        "replay",
+        "live/trajectory.csv",
+        "--scenario",
+        "s.toml",
+        "--method",
+        "hybrid",
+        "--seed",
+        "5",
+        "--out",
+        "replayed",
+    ]);
+    let (live, replayed) = (summary(&d.join("live")), summary(&d.join("replayed")));
+    let alarms = &live["actuator_alarms"]["alarms"];
+    assert!(
+        alarms
+            .as_array()
+            .is_some_and(|a| a.iter().any(|x| x["joint"] == format!("motor{joint}"))),
+        "{live}"
+    );
+    assert_eq!(alarms, &replayed["actuator_alarms"]["alarms"], "{replayed}");
+}
+
 #[test]
 fn readings_at_another_rate_enter_at_the_next_tick() {
     let tmp = tempfile::tempdir().unwrap();

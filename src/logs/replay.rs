@@ -20,7 +20,7 @@ use super::LogError;
 use super::recorded::RecordedLog;
 use crate::estimation::EstimatorInput;
 use crate::precision::{Calibration, PrecisionInput};
-use crate::scenario::metrics::{DivergenceGuard, RunMetrics};
+use crate::scenario::metrics::{ActuatorAlarms, DivergenceGuard, RunMetrics};
 use crate::scenario::runner::{Observer, Observers, Outcome, RunStart, TickRecord};
 use crate::scenario::{MAX_TICKS, Method, RunResult, RunSetup, ScenarioError};
 use crate::sensors::Readings;
@@ -109,6 +109,7 @@ pub fn replay(
         },
     )?;
     let mut metrics = RunMetrics::new(setup, &nominal);
+    let mut actuator_alarms = ActuatorAlarms::new(n, dt);
     let label = method.name();
     let start = RunStart {
         setup,
@@ -165,6 +166,7 @@ pub fn replay(
             applied_torques: &applied_before,
         });
         let free_energy = estimate.free_energy.unwrap_or(f64::NAN);
+        actuator_alarms.update(k, estimator.as_ref());
         precision.update(&PrecisionInput {
             tick: k,
             dt,
@@ -212,6 +214,7 @@ pub fn replay(
         &unknown,
         crate::scenario::metrics::RunDetectors {
             detection: precision.detection(),
+            actuator_alarms: actuator_alarms.alarms(),
             ..Default::default()
         },
         wall_seconds,

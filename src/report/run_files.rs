@@ -103,6 +103,7 @@ pub fn summary_json(setup: &RunSetup, result: &RunResult) -> serde_json::Value {
             "end": d.end,
             "sensor_alarms": d.sensor_alarms,
             "momentum_alarms": d.momentum_alarms,
+            "actuator_alarms": d.actuator_alarms,
         })).collect::<Vec<_>>(),
         "max_contact_normal_force": result.max_contact_normal_force,
         "momentum": result.momentum.as_ref().map(|m| json!({

@@ -113,6 +113,9 @@ pub struct DisturbanceOutcome {
     pub sensor_alarms: usize,
     /// Momentum alarms over the same window (when the observer runs).
     pub momentum_alarms: usize,
+    /// The method's own actuator alarms over the same window (when it infers actuator health,
+    /// the hybrid with `hybrid.actuators`): false ones, as no actuator is at fault.
+    pub actuator_alarms: usize,
 }
 
 /// What the momentum observer found in a run (`[momentum] enabled`).
@@ -428,6 +431,10 @@ impl RunMetrics {
                 end: d.end,
                 sensor_alarms: within(&mut events.iter().map(|(k, _)| *k), d),
                 momentum_alarms: within(&mut momentum_alarms.iter().map(|(k, _)| *k), d),
+                actuator_alarms: within(
+                    &mut actuator_alarms.unwrap_or(&[]).iter().map(|(k, _)| *k),
+                    d,
+                ),
             })
             .collect();
         let actuator_false_alarms = actuator_alarms.map_or(0, |a| self.outside_actuator_faults(a));
@@ -714,6 +721,47 @@ impl HealthAlarm {
             self.below_since = None;
         }
         None
+    }
+}
+
+/// A method's own actuator alarms, one [`HealthAlarm`] per joint on the health 1 - P(failed)
+/// the estimator infers ([`crate::estimation::Estimator::actuator_failure_probability`]); at
+/// most [`MAX_DETECTIONS`] kept.
+pub struct ActuatorAlarms {
+    health: Vec<HealthAlarm>,
+    /// (tick the health fell, joint), in time order.
+    alarms: Vec<(u64, usize)>,
+    inferred: bool,
+}
+
+impl ActuatorAlarms {
+    /// For `n` joints and ticks of `dt` seconds.
+    pub fn new(n: usize, dt: f64) -> Self {
+        Self {
+            health: vec![HealthAlarm::new(dt); n],
+            alarms: Vec::with_capacity(ACTUATOR_ALARMS_RESERVED),
+            inferred: false,
+        }
+    }
+
+    /// Feeds tick `k`'s actuator health from `estimator` (nothing when it infers none).
+    pub fn update(&mut self, k: u64, estimator: &dyn crate::estimation::Estimator) {
+        for (i, alarm) in self.health.iter_mut().enumerate() {
+            let Some(failed) = estimator.actuator_failure_probability(i) else {
+                break;
+            };
+            self.inferred = true;
+            if let Some(since) = alarm.update(k, 1.0 - failed)
+                && self.alarms.len() < MAX_DETECTIONS
+            {
+                self.alarms.push((since, i));
+            }
+        }
+    }
+
+    /// The alarms (tick, joint), or `None` when the estimator inferred no actuator health.
+    pub fn alarms(&self) -> Option<&[(u64, usize)]> {
+        self.inferred.then_some(self.alarms.as_slice())
     }
 }
 

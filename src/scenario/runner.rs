@@ -13,8 +13,7 @@ use std::time::Instant;
 
 use super::method::MethodParts;
 use super::metrics::{
-    ACTUATOR_ALARMS_RESERVED, ChatterMonitor, DivergenceGuard, HealthAlarm, MAX_DETECTIONS,
-    RunDetectors, RunMetrics, RunResult,
+    ActuatorAlarms, ChatterMonitor, DivergenceGuard, RunDetectors, RunMetrics, RunResult,
 };
 use super::{Method, RunSetup, ScenarioError};
 use crate::control::{BeliefTiming, Control};
@@ -307,8 +306,7 @@ pub struct Simulation {
     previous_mu_p: Vec<f64>,
     /// The alarm rule on each actuator's health under the method's actuator hypotheses (when
     /// it has any), and its alarms: tick and joint.
-    actuator_health: Vec<HealthAlarm>,
-    actuator_alarms: Vec<(u64, usize)>,
+    actuator_alarms: ActuatorAlarms,
     tick: u64,
     decided: bool,
 }
@@ -405,8 +403,7 @@ impl Simulation {
             free_energy: f64::NAN,
             previous_mu: vec![0.0; n],
             previous_mu_p: vec![0.0; n],
-            actuator_health: vec![HealthAlarm::new(setup.scenario().dt); n],
-            actuator_alarms: Vec::with_capacity(ACTUATOR_ALARMS_RESERVED),
+            actuator_alarms: ActuatorAlarms::new(n, setup.scenario().dt),
             tick: 0,
             decided: false,
         })
@@ -495,16 +492,7 @@ impl Simulation {
         });
         let finite = estimate.finite;
         let belief_energy = estimate.free_energy;
-        for (i, alarm) in self.actuator_health.iter_mut().enumerate() {
-            let Some(failed) = self.estimator.actuator_failure_probability(i) else {
-                break;
-            };
-            if let Some(since) = alarm.update(k, 1.0 - failed)
-                && self.actuator_alarms.len() < MAX_DETECTIONS
-            {
-                self.actuator_alarms.push((since, i));
-            }
-        }
+        self.actuator_alarms.update(k, self.estimator.as_ref());
         let target = &self.targets[self.target].1;
         let (mu, mu_p) = if previous {
             (&self.previous_mu[..], &self.previous_mu_p[..])
@@ -620,10 +608,7 @@ impl Simulation {
     /// method's probability that it failed, under the channels' alarm rule, `HealthAlarm`; at
     /// most [`MAX_DETECTIONS`]), or `None` when the method infers no actuator health.
     pub fn actuator_alarms(&self) -> Option<&[(u64, usize)]> {
-        self.estimator
-            .actuator_failure_probability(0)
-            .is_some()
-            .then_some(self.actuator_alarms.as_slice())
+        self.actuator_alarms.alarms()
     }
 }
 
