@@ -138,7 +138,8 @@ fn the_closed_loop_allocates_nothing_per_tick() {
 /// and the frozen tachometer there) and, on the Panda, joint limits engaged allocate nothing
 /// either. The detector (`pl-detect`, `deterministic`) tests the channels not isolated in its
 /// kept storage (it allocated a matrix every tick while a channel was isolated, 1-5 per tick);
-/// each alarm it raises allocates the list of the channels it isolated, once.
+/// each alarm it raises allocates the list of the channels it isolated, once. The hybrid with
+/// its opt-in bank options (`actuators`, `restart_ruled_out`) allocates nothing either.
 #[test]
 fn the_closed_loop_allocates_nothing_while_faults_come_and_go() {
     let faults = [
@@ -185,6 +186,23 @@ fn the_closed_loop_allocates_nothing_while_faults_come_and_go() {
                     }
                 }
             }
+        }
+        // The hybrid's opt-in bank options: actuator hypotheses and ruled-out hypotheses
+        // restarted every tick.
+        let options = common::with_faults(
+            file,
+            &faults,
+            &[
+                "gp.points=100",
+                "plant.engine=\"articulated\"",
+                "hybrid.actuators=true",
+                "hybrid.restart_ruled_out=true",
+            ],
+        );
+        let (a, _, _) = counted_ticks(&options, Method::Hybrid);
+        eprintln!("{file} with faults, hybrid with its options: {a} allocations per tick");
+        if a != 0.0 {
+            failures.push(format!("{file} hybrid with its options: {a} per tick"));
         }
     }
     assert!(failures.is_empty(), "{failures:#?}");

@@ -84,6 +84,49 @@ impl HypothesisBank {
         }
     }
 
+    /// The switching prior's better predecessor for each hypothesis, taken as its mean: before
+    /// the prior moves probability, hypothesis j is either j all along (weight (1 - s) p_j) or
+    /// the most probable hypothesis w switched to j now (weight leave p_w, leave = s / (m - 1));
+    /// where the switch weighs more, j restarts from w's mean, and from w's covariance where
+    /// `takes_covariance(j, w)` (else j keeps its own: a Kalman filter's covariance follows its
+    /// noise model, not the data). A hypothesis the data have ruled out since its last restart
+    /// (p_j below leave p_w / (1 - s)) therefore cannot carry a mean that absorbed the evidence
+    /// against it, and one that has beaten the winner since keeps its own (the Viterbi choice of
+    /// predecessor of a switching Kalman filter; docs/method.md, "The hybrid"). Returns how
+    /// many restarted.
+    pub fn restart_from_most_probable(
+        &mut self,
+        s: f64,
+        takes_covariance: impl Fn(usize, usize) -> bool,
+    ) -> usize {
+        let m = self.active_count();
+        if m < 2 || s <= 0.0 {
+            return 0;
+        }
+        let leave = s / (m - 1) as f64;
+        let w = self.most_probable();
+        let jump = leave * self.probability[w];
+        let mut restarted = 0;
+        for j in 0..self.len() {
+            if j == w || !self.active[j] || (1.0 - s) * self.probability[j] >= jump {
+                continue;
+            }
+            let (source, target) = if j < w {
+                let (lo, hi) = self.filters.split_at_mut(w);
+                (&hi[0], &mut lo[j])
+            } else {
+                let (lo, hi) = self.filters.split_at_mut(j);
+                (&lo[w], &mut hi[0])
+            };
+            target.x.copy_from(&source.x);
+            if takes_covariance(j, w) {
+                target.p.copy_from(&source.p);
+            }
+            restarted += 1;
+        }
+        restarted
+    }
+
     /// Predicts every active hypothesis one tick with the transition, hypothesis j's process
     /// noise scaled by `scale(j)`.
     pub fn predict(&mut self, transition: &Transition<'_>, scale: impl Fn(usize) -> f64) {
@@ -159,5 +202,56 @@ impl HypothesisBank {
         (0..self.len())
             .max_by(|&a, &b| self.probability[a].total_cmp(&self.probability[b]))
             .unwrap_or(0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sensors::{CameraModel, ChannelLayout};
+    use nalgebra::{DMatrix, DVector};
+    use std::sync::Arc;
+
+    /// Four hypotheses with distinct states (hypothesis j's mean and covariance scale with j + 1).
+    fn bank(probability: Vec<f64>) -> HypothesisBank {
+        let layout = ChannelLayout::new(2, CameraModel::Pinhole);
+        let observation = crate::estimation::models::GpCamera::shared(
+            layout,
+            Arc::new(crate::gp::GpModel::toy()),
+        );
+        let h = probability.len();
+        let mut b = HypothesisBank::new(Ekf::new(observation, 1e-3), probability, h);
+        for (j, f) in b.filters.iter_mut().enumerate() {
+            let s = j as f64 + 1.0;
+            f.x = DVector::from_fn(4, |r, _| s * (0.1 + 0.05 * r as f64));
+            f.p = DMatrix::identity(4, 4) * (1e-4 * s);
+        }
+        b
+    }
+
+    /// With s = 3e-3 over four hypotheses (leave = 1e-3) and the winner at 0.9: a hypothesis
+    /// below leave p_w / (1 - s) = 9.027e-4 restarts from the winner's state, one above keeps
+    /// its own, the winner keeps its own; the covariance comes from the winner or stays as asked;
+    /// without switching nothing moves.
+    #[test]
+    fn a_hypothesis_below_the_switching_inflow_restarts_from_the_winner() {
+        let p = vec![9.0e-4, 0.9, 9.1e-4, 0.0981];
+        let before = bank(p.clone());
+        let mut after = before.clone();
+        assert_eq!(after.restart_from_most_probable(3e-3, |_, _| true), 1);
+        assert_eq!(after.filters[0].x, before.filters[1].x);
+        assert_eq!(after.filters[0].p, before.filters[1].p);
+        let mut own = before.clone();
+        assert_eq!(own.restart_from_most_probable(3e-3, |_, _| false), 1);
+        assert_eq!(own.filters[0].x, before.filters[1].x);
+        assert_eq!(own.filters[0].p, before.filters[0].p);
+        for j in 1..4 {
+            assert_eq!(after.filters[j].x, before.filters[j].x, "{j}");
+            assert_eq!(after.filters[j].p, before.filters[j].p, "{j}");
+        }
+        assert_eq!(after.probability, p);
+        let mut still = before.clone();
+        assert_eq!(still.restart_from_most_probable(0.0, |_, _| true), 0);
+        assert_eq!(still.filters[0].x, before.filters[0].x);
     }
 }

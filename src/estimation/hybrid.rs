@@ -182,6 +182,13 @@ pub struct HybridConfig {
     /// An actuator hypothesis' process noise (standard deviation) as a multiple of the model's.
     #[serde(skip_serializing_if = "is_default_actuator_broad")]
     pub actuator_broad: f64,
+    /// Every tick, restart the hypotheses the data have ruled out since their last restart from
+    /// the most probable hypothesis' mean (the switching prior's better predecessor; docs/method.md,
+    /// "The hybrid", "Revived hypotheses"): a failure hypothesis revived by the switching prior
+    /// cannot carry a mean that absorbed the fault it lost to (an encoder bias read as a
+    /// tachometer failure). (Written only when set.)
+    #[serde(skip_serializing_if = "is_false")]
+    pub restart_ruled_out: bool,
 }
 
 impl Default for HybridConfig {
@@ -200,6 +207,7 @@ impl Default for HybridConfig {
             resync_ticks: 500,
             actuators: false,
             actuator_broad: 100.0,
+            restart_ruled_out: false,
         }
     }
 }
@@ -310,6 +318,8 @@ pub struct Hybrid {
     ticks: u64,
     // Scratch of a rebase or restart: the slots that keep their states, the new probabilities.
     kept: Vec<bool>,
+    /// Scratch: per hypothesis, whether it holds failed every key the most probable one does.
+    extends_winner: Vec<bool>,
     scratch_p: Vec<f64>,
     /// The last tick's readings (the stuck component's prediction).
     last: Vec<Option<f64>>,
@@ -378,6 +388,7 @@ impl Hybrid {
             initialised: false,
             ticks: 0,
             kept: vec![false; h],
+            extends_winner: vec![false; h],
             scratch_p: vec![0.0; h],
             last: vec![None; layout.len()],
             gap: DVector::zeros(dim),
@@ -718,6 +729,26 @@ impl Hybrid {
         }
     }
 
+    /// `restart_ruled_out`: every hypothesis the data have ruled out since its last restart
+    /// (its probability below the switching prior's inflow from the most probable hypothesis)
+    /// restarts from that hypothesis' mean ([`HypothesisBank::restart_from_most_probable`]).
+    /// It takes the winner's covariance only if it holds failed every key the winner does (it
+    /// knows no more); one that trusts a channel the winner holds failed keeps its own, so that
+    /// channel's reading is judged against the winner's estimate with the channel's own
+    /// precision, as at a resync (with the winner's broader uncertainty an offset on that
+    /// channel would be absorbed in one tick).
+    fn restart_ruled_out(&mut self) {
+        let w = self.bank.most_probable();
+        let keys = self.base_failed.len();
+        for j in 0..self.bank.len() {
+            self.extends_winner[j] =
+                (0..keys).all(|k| !self.holds_failed(w, k) || self.holds_failed(j, k));
+        }
+        let extends = &self.extends_winner;
+        self.bank
+            .restart_from_most_probable(self.config.switch, |j, _| extends[j]);
+    }
+
     fn step_bank(&mut self, input: &EstimatorInput<'_>) {
         let h = self.bank.len();
         if !self.initialised {
@@ -737,6 +768,9 @@ impl Hybrid {
             // every hypothesis starts from one reading, and a failure hypothesis that leads for
             // a tick would otherwise make the model predict from its own estimate and stay
             // ahead (start-up false alarms).
+            if self.config.restart_ruled_out {
+                self.restart_ruled_out();
+            }
             let x = if self.ticks < self.config.resync_ticks {
                 self.uaic.belief()
             } else {

@@ -1,0 +1,98 @@
+//! The hybrid's revived hypotheses (`hybrid.restart_ruled_out`, docs/method.md, "The hybrid"):
+//! a hypothesis the data ruled out restarts from the winner's mean instead of carrying a state
+//! that absorbed the fault it lost to. On generated arms no screen used (`aift gen-arm --seed
+//! 73001..=73005`, `aift init`), an encoder bias of 0.05 rad on the last joint while the arm
+//! moves: wherever the oracle (told the faulty channel) ends within the campaign's 0.02 rad,
+//! the hybrid with revived hypotheses restarted isolates the encoder and does too. (Without
+//! the option the hybrid followed the biased encoder on each of these arms, 0.050 rad final
+//! error, or blamed the tachometer: measured in docs/method.md, not asserted here.)
+
+mod common;
+
+use std::path::Path;
+
+/// `gen-arm` and `init` for `seed` in `dir`, with a 0.05 rad bias on the last joint's encoder
+/// from 8 s appended: the scenario's path and the faulted joint (1-based), or None where `init`
+/// refuses the arm.
+fn faulted_arm(seed: u64, dir: &Path) -> Option<(String, usize)> {
+    let urdf = format!("arm{seed}.urdf");
+    let scenario = format!("arm{seed}.toml");
+    common::aift_ok(
+        &["gen-arm", "--seed", &seed.to_string(), "--out", &urdf],
+        dir,
+    );
+    let init = common::aift_in(&["init", "--urdf", &urdf, "--out", &scenario], dir);
+    if init.status.code() != Some(0) {
+        return None;
+    }
+    let n = aift::arm::load_urdf(&dir.join(&urdf)).unwrap().joints.len();
+    let mut text = std::fs::read_to_string(dir.join(&scenario)).unwrap();
+    text += &format!(
+        "\n[[faults]]\nchannel = \"enc{n}\"\nkind = \"bias\"\noffset = 0.05\nstart = 8.0\n"
+    );
+    std::fs::write(dir.join(&scenario), text).unwrap();
+    Some((scenario, n))
+}
+
+/// One run's summary.json.
+fn run(dir: &Path, scenario: &str, method: &str, extra: &[&str], out: &str) -> serde_json::Value {
+    let mut args = vec![
+        "run",
+        scenario,
+        "--method",
+        method,
+        "--seed",
+        "1",
+        "--set",
+        "plant.engine=\"articulated\"",
+        "--out",
+        out,
+    ];
+    args.extend_from_slice(extra);
+    common::aift_ok(&args, dir);
+    let text = std::fs::read_to_string(dir.join(out).join("summary.json")).unwrap();
+    serde_json::from_str(&text).unwrap()
+}
+
+#[test]
+fn an_encoder_bias_stays_the_encoders_with_ruled_out_hypotheses_restarted() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let mut judged = 0;
+    for seed in 73001..=73005 {
+        let Some((scenario, n)) = faulted_arm(seed, d) else {
+            continue;
+        };
+        let final_error =
+            |s: &serde_json::Value| s["final_error_per_joint"][n - 1].as_f64().unwrap();
+        let oracle = run(d, &scenario, "oracle", &[], &format!("oracle{seed}"));
+        let hybrid = run(
+            d,
+            &scenario,
+            "hybrid",
+            &["--set", "hybrid.restart_ruled_out=true"],
+            &format!("hybrid{seed}"),
+        );
+        eprintln!(
+            "arm {seed}: enc{n} bias, final error oracle {:.4}, hybrid {:.4}, isolated {}",
+            final_error(&oracle),
+            final_error(&hybrid),
+            hybrid["faults"][0]["isolated"]
+        );
+        if final_error(&oracle) >= 0.02 {
+            continue;
+        }
+        judged += 1;
+        assert_eq!(
+            hybrid["faults"][0]["isolated"],
+            format!("enc{n}"),
+            "arm {seed}"
+        );
+        assert!(
+            final_error(&hybrid) < 0.02,
+            "arm {seed}: {}",
+            final_error(&hybrid)
+        );
+    }
+    assert!(judged >= 3, "only {judged} arms where the oracle recovers");
+}
