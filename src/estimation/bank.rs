@@ -87,17 +87,16 @@ impl HypothesisBank {
     /// The switching prior's better predecessor for each hypothesis, taken as its mean: before
     /// the prior moves probability, hypothesis j is either j all along (weight (1 - s) p_j) or
     /// the most probable hypothesis w switched to j now (weight leave p_w, leave = s / (m - 1));
-    /// where the switch weighs more, j restarts from w's mean, and from w's covariance where
-    /// `takes_covariance(j, w)` (else j keeps its own: a Kalman filter's covariance follows its
-    /// noise model, not the data). A hypothesis the data have ruled out since its last restart
-    /// (p_j below leave p_w / (1 - s)) therefore cannot carry a mean that absorbed the evidence
-    /// against it, and one that has beaten the winner since keeps its own (the Viterbi choice of
-    /// predecessor of a switching Kalman filter; docs/method.md, "The hybrid"). Returns how
-    /// many restarted.
+    /// where the switch weighs more and `eligible(j, w)`, j restarts from w's mean and keeps its
+    /// own covariance (a Kalman filter's covariance follows its noise model, not the data). A
+    /// hypothesis the data have ruled out since its last restart (p_j below leave p_w / (1 - s))
+    /// therefore cannot carry a mean that absorbed the evidence against it, and one that has
+    /// beaten the winner since keeps its own (the Viterbi choice of predecessor of a switching
+    /// Kalman filter; docs/method.md, "The hybrid"). Returns how many restarted.
     pub fn restart_from_most_probable(
         &mut self,
         s: f64,
-        takes_covariance: impl Fn(usize, usize) -> bool,
+        eligible: impl Fn(usize, usize) -> bool,
     ) -> usize {
         let m = self.active_count();
         if m < 2 || s <= 0.0 {
@@ -108,7 +107,11 @@ impl HypothesisBank {
         let jump = leave * self.probability[w];
         let mut restarted = 0;
         for j in 0..self.len() {
-            if j == w || !self.active[j] || (1.0 - s) * self.probability[j] >= jump {
+            if j == w
+                || !self.active[j]
+                || (1.0 - s) * self.probability[j] >= jump
+                || !eligible(j, w)
+            {
                 continue;
             }
             let (source, target) = if j < w {
@@ -119,9 +122,6 @@ impl HypothesisBank {
                 (&lo[w], &mut hi[0])
             };
             target.x.copy_from(&source.x);
-            if takes_covariance(j, w) {
-                target.p.copy_from(&source.p);
-            }
             restarted += 1;
         }
         restarted
@@ -231,8 +231,8 @@ mod tests {
 
     /// With s = 3e-3 over four hypotheses (leave = 1e-3) and the winner at 0.9: a hypothesis
     /// below leave p_w / (1 - s) = 9.027e-4 restarts from the winner's state, one above keeps
-    /// its own, the winner keeps its own; the covariance comes from the winner or stays as asked;
-    /// without switching nothing moves.
+    /// its own, the winner keeps its own; a restart takes the mean and keeps the covariance; one
+    /// not eligible stays; without switching nothing moves.
     #[test]
     fn a_hypothesis_below_the_switching_inflow_restarts_from_the_winner() {
         let p = vec![9.0e-4, 0.9, 9.1e-4, 0.0981];
@@ -240,11 +240,10 @@ mod tests {
         let mut after = before.clone();
         assert_eq!(after.restart_from_most_probable(3e-3, |_, _| true), 1);
         assert_eq!(after.filters[0].x, before.filters[1].x);
-        assert_eq!(after.filters[0].p, before.filters[1].p);
-        let mut own = before.clone();
-        assert_eq!(own.restart_from_most_probable(3e-3, |_, _| false), 1);
-        assert_eq!(own.filters[0].x, before.filters[1].x);
-        assert_eq!(own.filters[0].p, before.filters[0].p);
+        assert_eq!(after.filters[0].p, before.filters[0].p);
+        let mut none = before.clone();
+        assert_eq!(none.restart_from_most_probable(3e-3, |j, w| j != 0 || w != 1), 0);
+        assert_eq!(none.filters[0].x, before.filters[0].x);
         for j in 1..4 {
             assert_eq!(after.filters[j].x, before.filters[j].x, "{j}");
             assert_eq!(after.filters[j].p, before.filters[j].p, "{j}");

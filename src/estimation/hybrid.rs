@@ -182,11 +182,13 @@ pub struct HybridConfig {
     /// An actuator hypothesis' process noise (standard deviation) as a multiple of the model's.
     #[serde(skip_serializing_if = "is_default_actuator_broad")]
     pub actuator_broad: f64,
-    /// Every tick, restart the hypotheses the data have ruled out since their last restart from
-    /// the most probable hypothesis' mean (the switching prior's better predecessor; docs/method.md,
-    /// "The hybrid", "Revived hypotheses"): a failure hypothesis revived by the switching prior
-    /// cannot carry a mean that absorbed the fault it lost to (an encoder bias read as a
-    /// tachometer failure). (Written only when set.)
+    /// Every tick, the hypotheses the data have ruled out since their last restart and that
+    /// trust a channel the most probable hypothesis holds failed restart from its mean (the
+    /// switching prior's better predecessor; docs/method.md, "The hybrid", revived hypotheses):
+    /// a hypothesis revived by the switching prior cannot carry a mean that absorbed the fault
+    /// it lost to (an encoder bias read as a tachometer failure). Off by default: measured, it
+    /// recovers many more encoder faults on generated arms and loses some encoder drifts of the
+    /// development campaign. (Written only when set.)
     #[serde(skip_serializing_if = "is_false")]
     pub restart_ruled_out: bool,
 }
@@ -731,12 +733,13 @@ impl Hybrid {
 
     /// `restart_ruled_out`: every hypothesis the data have ruled out since its last restart
     /// (its probability below the switching prior's inflow from the most probable hypothesis)
-    /// restarts from that hypothesis' mean ([`HypothesisBank::restart_from_most_probable`]).
-    /// It takes the winner's covariance only if it holds failed every key the winner does (it
-    /// knows no more); one that trusts a channel the winner holds failed keeps its own, so that
-    /// channel's reading is judged against the winner's estimate with the channel's own
-    /// precision, as at a resync (with the winner's broader uncertainty an offset on that
-    /// channel would be absorbed in one tick).
+    /// and that trusts a channel the winner holds failed restarts from the winner's mean,
+    /// keeping its own covariance ([`HypothesisBank::restart_from_most_probable`]): only such a
+    /// hypothesis can absorb the winner's fault into its state (an encoder bias the winner
+    /// blames, absorbed as motion by "the tachometer failed"), and its reading of that channel
+    /// is then judged against the winner's estimate with the channel's own precision. One that
+    /// holds failed everything the winner does keeps its state until the resync: a slow fault
+    /// (a drift) shows only in evidence it gathers over many ticks.
     fn restart_ruled_out(&mut self) {
         let w = self.bank.most_probable();
         let keys = self.base_failed.len();
@@ -746,7 +749,7 @@ impl Hybrid {
         }
         let extends = &self.extends_winner;
         self.bank
-            .restart_from_most_probable(self.config.switch, |j, _| extends[j]);
+            .restart_from_most_probable(self.config.switch, |j, _| !extends[j]);
     }
 
     fn step_bank(&mut self, input: &EstimatorInput<'_>) {
