@@ -242,7 +242,10 @@ mod tests {
         assert_eq!(after.filters[0].x, before.filters[1].x);
         assert_eq!(after.filters[0].p, before.filters[0].p);
         let mut none = before.clone();
-        assert_eq!(none.restart_from_most_probable(3e-3, |j, w| j != 0 || w != 1), 0);
+        assert_eq!(
+            none.restart_from_most_probable(3e-3, |j, w| j != 0 || w != 1),
+            0
+        );
         assert_eq!(none.filters[0].x, before.filters[0].x);
         for j in 1..4 {
             assert_eq!(after.filters[j].x, before.filters[j].x, "{j}");
