@@ -21,6 +21,23 @@ fn summary(dir: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap()
 }
 
+/// `aift replay LOG --scenario s.toml --method hybrid --out OUT` in `dir`, with `extra`
+/// arguments.
+fn replay_hybrid(dir: &Path, log: &str, out: &str, extra: &[&str]) {
+    let mut args = vec![
+        "replay",
+        log,
+        "--scenario",
+        "s.toml",
+        "--method",
+        "hybrid",
+        "--out",
+        out,
+    ];
+    args.extend_from_slice(extra);
+    common::aift_ok(&args, dir);
+}
+
 #[test]
 fn a_replayed_run_gives_its_belief_and_detections() {
     let tmp = tempfile::tempdir().unwrap();
@@ -32,19 +49,7 @@ fn a_replayed_run_gives_its_belief_and_detections() {
         ],
         d,
     );
-    common::aift_ok(
-        &[
-            "replay",
-            "live/trajectory.csv",
-            "--scenario",
-            "s.toml",
-            "--method",
-            "hybrid",
-            "--out",
-            "from-csv",
-        ],
-        d,
-    );
+    replay_hybrid(d, "live/trajectory.csv", "from-csv", &[]);
     let live = TrajectoryRecorder::read_csv(&d.join("live/trajectory.csv")).unwrap();
     let replayed = TrajectoryRecorder::read_csv(&d.join("from-csv/trajectory.csv")).unwrap();
     assert_eq!(live.rows.len(), replayed.rows.len());
@@ -64,19 +69,7 @@ fn a_replayed_run_gives_its_belief_and_detections() {
     assert!(s_csv["detected_at"].as_f64().is_some(), "{s_csv}");
 
     // From the run's MCAP: the same readings, so the same detections.
-    common::aift_ok(
-        &[
-            "replay",
-            "live/run.mcap",
-            "--scenario",
-            "s.toml",
-            "--method",
-            "hybrid",
-            "--out",
-            "from-mcap",
-        ],
-        d,
-    );
+    replay_hybrid(d, "live/run.mcap", "from-mcap", &[]);
     let s_mcap = summary(&d.join("from-mcap"));
     assert_eq!(s_live["detected_at"], s_mcap["detected_at"]);
     assert_eq!(s_live["isolated_channel"], s_mcap["isolated_channel"]);
@@ -101,26 +94,14 @@ fn a_replayed_run_gives_its_actuator_alarms() {
         "--set",
         "plant.engine=\"articulated\"",
     ];
-    let run = |args: &[&str]| {
-        let mut all = args.to_vec();
-        all.extend_from_slice(&set);
-        common::aift_ok(&all, d);
-    };
-    run(&[
+    let mut live_args = vec![
         "run", "s.toml", "--method", "hybrid", "--seed", "5", "--out", "live",
-    ]);
-    run(&[
-        "replay",
-        "live/trajectory.csv",
-        "--scenario",
-        "s.toml",
-        "--method",
-        "hybrid",
-        "--seed",
-        "5",
-        "--out",
-        "replayed",
-    ]);
+    ];
+    live_args.extend_from_slice(&set);
+    common::aift_ok(&live_args, d);
+    let mut replay_args = vec!["--seed", "5"];
+    replay_args.extend_from_slice(&set);
+    replay_hybrid(d, "live/trajectory.csv", "replayed", &replay_args);
     let (live, replayed) = (summary(&d.join("live")), summary(&d.join("replayed")));
     let alarms = &live["actuator_alarms"]["alarms"];
     assert!(

@@ -764,6 +764,9 @@ impl Hybrid {
             }
             self.initialised = true;
         } else {
+            if self.config.restart_ruled_out {
+                self.restart_ruled_out();
+            }
             // The model's transition at the most probable hypothesis' estimate (which uses the
             // model; the u-AIC's belief has only the acceleration-bound prior, and without a
             // tachometer its velocity can be off by 0.1 rad/s, which on a damped arm is a wrong
@@ -771,9 +774,6 @@ impl Hybrid {
             // every hypothesis starts from one reading, and a failure hypothesis that leads for
             // a tick would otherwise make the model predict from its own estimate and stay
             // ahead (start-up false alarms).
-            if self.config.restart_ruled_out {
-                self.restart_ruled_out();
-            }
             let x = if self.ticks < self.config.resync_ticks {
                 self.uaic.belief()
             } else {

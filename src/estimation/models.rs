@@ -145,17 +145,11 @@ impl ArmTransition {
         for (j, joint) in model.joints.iter().enumerate() {
             // The inertial torque M qdd the model predicts is off by its mass error too.
             let inertial = torques[j] - self.dynamics.bias()[j] - joint.damping * qd[j];
-            // With the implicit step the damping acts on the velocity at the tick's end, which
-            // on a light, damped joint is reached within the tick: its error is taken at the
-            // larger of the two velocities.
-            let speed = qd[j]
-                .abs()
-                .max((qd[j] + self.implicit_step * self.acceleration[j]).abs());
             let terms = [
                 u.mass.max(u.inertia) * inertial,
                 u.mass * self.dynamics.bias()[j],
                 self.com_torque[j],
-                u.damping * joint.damping * speed,
+                u.damping * joint.damping * qd[j],
                 u.friction * joint.friction,
             ];
             self.torque_error[j] = terms.iter().map(|t| t * t).sum::<f64>();
