@@ -92,16 +92,12 @@ impl HypothesisBank {
     /// hypothesis the data have ruled out since its last restart (p_j below leave p_w / (1 - s))
     /// therefore cannot carry a mean that absorbed the evidence against it, and one that has
     /// beaten the winner since keeps its own (the Viterbi choice of predecessor of a switching
-    /// Kalman filter; docs/method.md, "The hybrid"). Marks the slots that restarted in
-    /// `restarted` (its length is the bank's; every other entry is set false) and returns how
-    /// many.
+    /// Kalman filter; docs/method.md, "The hybrid"). Returns how many restarted.
     pub fn restart_from_most_probable(
         &mut self,
         s: f64,
         eligible: impl Fn(usize, usize) -> bool,
-        restarted: &mut [bool],
     ) -> usize {
-        restarted.fill(false);
         let m = self.active_count();
         if m < 2 || s <= 0.0 {
             return 0;
@@ -109,7 +105,7 @@ impl HypothesisBank {
         let leave = s / (m - 1) as f64;
         let w = self.most_probable();
         let jump = leave * self.probability[w];
-        let mut count = 0;
+        let mut restarted = 0;
         for j in 0..self.len() {
             if j == w
                 || !self.active[j]
@@ -126,10 +122,9 @@ impl HypothesisBank {
                 (&lo[w], &mut hi[0])
             };
             target.x.copy_from(&source.x);
-            restarted[j] = true;
-            count += 1;
+            restarted += 1;
         }
-        count
+        restarted
     }
 
     /// Predicts every active hypothesis one tick with the transition, hypothesis j's process
@@ -243,20 +238,14 @@ mod tests {
         let p = vec![9.0e-4, 0.9, 9.1e-4, 0.0981];
         let before = bank(p.clone());
         let mut after = before.clone();
-        let mut marks = vec![true; 4];
-        assert_eq!(
-            after.restart_from_most_probable(3e-3, |_, _| true, &mut marks),
-            1
-        );
-        assert_eq!(marks, [true, false, false, false]);
+        assert_eq!(after.restart_from_most_probable(3e-3, |_, _| true), 1);
         assert_eq!(after.filters[0].x, before.filters[1].x);
         assert_eq!(after.filters[0].p, before.filters[0].p);
         let mut none = before.clone();
         assert_eq!(
-            none.restart_from_most_probable(3e-3, |j, w| j != 0 || w != 1, &mut marks),
+            none.restart_from_most_probable(3e-3, |j, w| j != 0 || w != 1),
             0
         );
-        assert_eq!(marks, [false; 4]);
         assert_eq!(none.filters[0].x, before.filters[0].x);
         for j in 1..4 {
             assert_eq!(after.filters[j].x, before.filters[j].x, "{j}");
@@ -264,10 +253,7 @@ mod tests {
         }
         assert_eq!(after.probability, p);
         let mut still = before.clone();
-        assert_eq!(
-            still.restart_from_most_probable(0.0, |_, _| true, &mut marks),
-            0
-        );
+        assert_eq!(still.restart_from_most_probable(0.0, |_, _| true), 0);
         assert_eq!(still.filters[0].x, before.filters[0].x);
     }
 }

@@ -191,16 +191,6 @@ pub struct HybridConfig {
     /// development campaign. (Written only when set.)
     #[serde(skip_serializing_if = "is_false")]
     pub restart_ruled_out: bool,
-    /// The weight of "its own reading plus an offset the hypothesis learns" in a failed
-    /// channel's reading model (fault as state; docs/method.md, "The hybrid", "A failed
-    /// channel's offset"): beside broad noise and the stuck component, a failed reading is, with
-    /// this probability, the channel's prediction plus an offset that each hypothesis holding it
-    /// failed tracks (a random walk moving by one noise standard deviation per tick, starting at
-    /// the broad width), so that a biased, drifting or scaled sensor costs every hypothesis that
-    /// blames it ln(1 / this) per tick, however well the other channels predict it. 0: off
-    /// (default; written only when set).
-    #[serde(skip_serializing_if = "is_zero")]
-    pub offset_weight: f64,
 }
 
 impl Default for HybridConfig {
@@ -220,7 +210,6 @@ impl Default for HybridConfig {
             actuators: false,
             actuator_broad: 100.0,
             restart_ruled_out: false,
-            offset_weight: 0.0,
         }
     }
 }
@@ -254,14 +243,6 @@ impl HybridConfig {
                 "must be in [0, 1)",
             ));
         }
-        if !(0.0..1.0).contains(&self.offset_weight)
-            || self.offset_weight + self.stuck_weight >= 1.0
-        {
-            return Err(crate::SettingError::new(
-                "offset_weight",
-                "must be in [0, 1) with offset_weight + stuck_weight < 1",
-            ));
-        }
         if !(self.actuator_broad.is_finite()
             && self.actuator_broad > 1.0
             && self.actuator_broad <= 1e6)
@@ -283,10 +264,6 @@ impl HybridConfig {
 
 fn is_false(v: &bool) -> bool {
     !*v
-}
-
-fn is_zero(v: &f64) -> bool {
-    *v == 0.0
 }
 
 fn is_default_actuator_broad(v: &f64) -> bool {
@@ -345,12 +322,6 @@ pub struct Hybrid {
     kept: Vec<bool>,
     /// Scratch: per hypothesis, whether it holds failed every key the most probable one does.
     extends_winner: Vec<bool>,
-    /// Scratch: the hypotheses `restart_ruled_out` restarted this tick.
-    restarted: Vec<bool>,
-    /// With `offset_weight`: per hypothesis and channel (h x C, row-major), the learned offset
-    /// of a channel it holds failed and its variance (NaN: not learning, the channel trusted).
-    offset: Vec<f64>,
-    offset_variance: Vec<f64>,
     scratch_p: Vec<f64>,
     /// The last tick's readings (the stuck component's prediction).
     last: Vec<Option<f64>>,
@@ -420,9 +391,6 @@ impl Hybrid {
             ticks: 0,
             kept: vec![false; h],
             extends_winner: vec![false; h],
-            restarted: vec![false; h],
-            offset: vec![0.0; h * layout.len()],
-            offset_variance: vec![f64::NAN; h * layout.len()],
             scratch_p: vec![0.0; h],
             last: vec![None; layout.len()],
             gap: DVector::zeros(dim),
@@ -585,12 +553,12 @@ impl Hybrid {
                 }
                 self.base_failed[t] = true;
                 self.order.push(t);
-                self.swap_slots(0, w);
+                self.bank.filters.swap(0, w);
                 p[w] = old_base;
                 kept[w] = true;
                 for i in 0..k {
                     if !self.base_failed[self.keys[i]] {
-                        self.swap_slots(1 + i, 1 + k + i);
+                        self.bank.filters.swap(1 + i, 1 + k + i);
                         p[1 + k + i] = self.bank.probability[1 + i];
                         kept[1 + k + i] = true;
                     }
@@ -600,7 +568,7 @@ impl Hybrid {
                 // A fault that ended: the old base is "t failed after all".
                 self.base_failed[t] = false;
                 self.order.retain(|&c| c != t);
-                self.swap_slots(0, w);
+                self.bank.filters.swap(0, w);
                 p[w] = old_base;
                 kept[w] = true;
             }
@@ -613,8 +581,8 @@ impl Hybrid {
                 self.order.pop();
                 self.order.push(t);
                 let back = 1 + k + self.keys.iter().position(|&c| c == b).expect("a key");
-                self.swap_slots(0, w);
-                self.swap_slots(w, back);
+                self.bank.filters.swap(0, w);
+                self.bank.filters.swap(w, back);
                 p[back] = old_base;
                 kept[back] = true;
             }
@@ -642,31 +610,6 @@ impl Hybrid {
         self.kept = kept;
         self.scratch_p = p;
         self.restart_from_base();
-    }
-
-    /// Swaps two slots' filters and learned offsets.
-    fn swap_slots(&mut self, a: usize, b: usize) {
-        self.bank.filters.swap(a, b);
-        let c = self.layout.len();
-        for i in 0..c {
-            self.offset.swap(a * c + i, b * c + i);
-            self.offset_variance.swap(a * c + i, b * c + i);
-        }
-    }
-
-    /// Slot `to` takes slot `from`'s learned offsets (a restart from its mean): the channels
-    /// both hold failed keep `from`'s offset, the others start again.
-    fn copy_offsets(&mut self, from: usize, to: usize) {
-        let c = self.layout.len();
-        for i in 0..c {
-            let (value, variance) = if self.holds_failed(from, self.key(i)) {
-                (self.offset[from * c + i], self.offset_variance[from * c + i])
-            } else {
-                (0.0, f64::NAN)
-            };
-            self.offset[to * c + i] = value;
-            self.offset_variance[to * c + i] = variance;
-        }
     }
 
     /// A resync while the winner stays, every `resync_ticks`. The hypotheses the data do not
@@ -710,7 +653,6 @@ impl Hybrid {
             } else {
                 f.p.copy_from(&self.healthy_p);
             }
-            self.copy_offsets(0, j);
         }
     }
 
@@ -806,91 +748,8 @@ impl Hybrid {
                 (0..keys).all(|k| !self.holds_failed(w, k) || self.holds_failed(j, k));
         }
         let extends = &self.extends_winner;
-        self.bank.restart_from_most_probable(
-            self.config.switch,
-            |j, _| !extends[j],
-            &mut self.restarted,
-        );
-        for j in 0..self.bank.len() {
-            if self.restarted[j] {
-                self.copy_offsets(w, j);
-            }
-        }
-    }
-
-    /// With `offset_weight` (fault as state; docs/method.md, "The hybrid", "A failed channel's
-    /// offset"): the log evidence hypothesis j's failed channels add beside the broad
-    /// innovation density the filter scores them with, per failed channel
-    /// ln((1 - w_s - w_o) + w_s N_stuck / N_broad + w_o N_offset / N_broad), N_offset =
-    /// N(y; prediction + b, projected variance + nominal variance + P_b) with the offset b the
-    /// hypothesis learns for the channel (a scalar Kalman filter, random walk of one nominal
-    /// variance per tick, starting at b = 0, P_b = the broad variance, updated with the offset
-    /// component's responsibility). The stuck component as in [`Self::stuck_evidence`] (its
-    /// weight goes to the broad one where it does not apply). The offset does not update the
-    /// hypothesis' state: a failed channel stays out of the estimate.
-    fn offset_evidence(&mut self, j: usize, input: &EstimatorInput<'_>) -> f64 {
-        let (ws, wo) = (self.config.stuck_weight, self.config.offset_weight);
-        let channels = self.layout.len();
-        let mut total = 0.0;
-        for c in 0..channels {
-            let slot = j * channels + c;
-            let r = self.variances[c];
-            let key = self.key(c);
-            if !self.holds_failed(j, key) {
-                self.offset_variance[slot] = f64::NAN;
-                continue;
-            }
-            let Some(y) = input.readings.get(c) else {
-                continue;
-            };
-            if !r.is_finite() || self.nominal[c] >= NOISE_FREE_PRECISION {
-                continue;
-            }
-            let nominal_variance = match self.layout.channel(c) {
-                Channel::Camera(_) => {
-                    self.config.camera_inflation * self.config.camera_inflation / self.nominal[c]
-                }
-                _ => 1.0 / self.nominal[c],
-            };
-            let f = &self.bank.filters[j];
-            let (prediction, projected) = (f.predicted(c), f.projected_variance(c));
-            let nu = y - prediction;
-            let s = projected + r;
-            let ln_broad = -0.5 * (nu * nu / s + s.ln());
-            if self.offset_variance[slot].is_nan() {
-                self.offset[slot] = 0.0;
-                self.offset_variance[slot] = r;
-            }
-            let pb = self.offset_variance[slot] + nominal_variance;
-            let nu_o = nu - self.offset[slot];
-            let s_o = projected + nominal_variance + pb;
-            let ln_offset = -0.5 * (nu_o * nu_o / s_o + s_o.ln());
-            // The mixture's terms relative to N_broad, in logs.
-            let stuck = match self.last[c] {
-                Some(last) if ws > 0.0 => {
-                    let width = self.config.stuck_width * self.config.stuck_width / self.nominal[c];
-                    let d = y - last;
-                    Some(ws.ln() - 0.5 * (d * d / width + width.ln()) - ln_broad)
-                }
-                _ => None,
-            };
-            let broad_weight = 1.0 - wo - if stuck.is_some() { ws } else { 0.0 };
-            let terms = [
-                broad_weight.ln(),
-                stuck.unwrap_or(f64::NEG_INFINITY),
-                wo.ln() + ln_offset - ln_broad,
-            ];
-            let m = terms.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-            let sum: f64 = terms.iter().map(|t| (t - m).exp()).sum();
-            let ln_mixture = m + sum.ln();
-            total += ln_mixture;
-            // The offset's update, weighted by the offset component's responsibility.
-            let responsibility = (terms[2] - ln_mixture).exp();
-            let gain = pb / s_o;
-            self.offset[slot] += responsibility * gain * nu_o;
-            self.offset_variance[slot] = pb - responsibility * gain * pb;
-        }
-        total
+        self.bank
+            .restart_from_most_probable(self.config.switch, |j, _| !extends[j]);
     }
 
     fn step_bank(&mut self, input: &EstimatorInput<'_>) {
@@ -943,11 +802,7 @@ impl Hybrid {
         for j in 0..h {
             if self.bank.active[j] {
                 self.hypothesis_variances(j, input);
-                let stuck = if self.config.offset_weight > 0.0 {
-                    self.offset_evidence(j, input)
-                } else {
-                    self.stuck_evidence(j, input)
-                };
+                let stuck = self.stuck_evidence(j, input);
                 self.bank.log_evidence[j] =
                     self.bank.filters[j].update(input.readings, &self.variances) + stuck;
             } else {
@@ -1169,64 +1024,6 @@ mod tests {
             let (h, _) = accelerate(actuators, 0.0);
             assert_eq!(h.failed_channels().count(), 0);
             assert_eq!(h.failed_actuators(), (vec![], false));
-        }
-    }
-
-    /// `offset_weight` (a failed channel's offset as a latent state of the hypotheses that hold
-    /// it failed): encoder 1 of the toy arm at rest reads 0.05 rad off from 0.1 s on. Before the
-    /// first resync (0.5 s), the hypothesis "encoder 1 failed" (slot 1) has learned the offset
-    /// of the reading from its own position (which the broad reading pulls slowly), its
-    /// variance at the fixed point of
-    /// the scalar random walk's Riccati equation, P- = (q + sqrt(q^2 + 4 q R)) / 2, P+ = P- R /
-    /// (P- + R), with q the channel's nominal variance and R the slot's projected variance plus
-    /// q (to 5 %); the channels it trusts learn nothing (NaN).
-    #[test]
-    fn a_failed_encoders_offset_is_learned_to_its_bias_at_the_riccati_fixed_point() {
-        use rand::SeedableRng;
-        use rand_distr::{Distribution, Normal};
-        let layout = ChannelLayout::new(2, CameraModel::Pinhole);
-        let nominal = TOY_NOMINAL;
-        // The offset component's weight near 1, so that its responsibility is about 1 and the
-        // learner is the plain scalar Kalman filter whose fixed point is known.
-        let mut h = toy_hybrid_with(HybridConfig {
-            offset_weight: 0.98,
-            ..HybridConfig::default()
-        });
-        let mut rng = rand::rngs::StdRng::seed_from_u64(11);
-        let noise = Normal::new(0.0, 1e-3).unwrap();
-        let bias = 0.05;
-        for k in 0..450u64 {
-            let mut readings = Readings::missing(&layout);
-            let b = if k >= 100 { bias } else { 0.0 };
-            readings.values[0] = Some(b + noise.sample(&mut rng));
-            for c in 1..4 {
-                readings.values[c] = Some(noise.sample(&mut rng));
-            }
-            h.update(&EstimatorInput {
-                tick: k,
-                readings: &readings,
-                precisions: &nominal,
-                applied_torques: &[0.0, 0.0],
-            });
-        }
-        let channels = layout.len();
-        assert_eq!(sets(&h)[1], (1, vec![0]), "slot 1 holds encoder 1 failed");
-        let (b, p) = (h.offset[channels], h.offset_variance[channels]);
-        let expected = bias - h.bank.filters[1].x[0];
-        assert!(expected > 0.01, "{expected}");
-        assert!((b - expected).abs() < 3e-3, "offset {b}, expected {expected}");
-        let q = 1.0 / nominal[0];
-        let r = h.bank.filters[1].projected_variance(0) + q;
-        let prior = 0.5 * (q + (q * q + 4.0 * q * r).sqrt());
-        let fixed = prior * r / (prior + r);
-        // R grows slowly (slot 1's position is observed only through the broad reading), and
-        // the learner's variance lags it: measured 3 % above the fixed point at today's R.
-        assert!(
-            (p - fixed).abs() < 0.05 * fixed,
-            "offset variance {p}, fixed point {fixed}"
-        );
-        for c in 1..channels {
-            assert!(h.offset_variance[channels + c].is_nan(), "channel {c}");
         }
     }
 
