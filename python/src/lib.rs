@@ -1075,6 +1075,22 @@ impl PySim {
         };
         info.set_item("alarm", alarm)?;
         info.set_item("isolated", isolated)?;
+        // The method's own actuator alarms so far, as summary.json's `actuator_alarms.alarms`
+        // (None for a method that infers no actuator health).
+        let dt = self.setup.scenario().dt;
+        match sim.actuator_alarms() {
+            Some(alarms) => {
+                let list = pyo3::types::PyList::empty(py);
+                for &(tick, joint) in alarms {
+                    let alarm = PyDict::new(py);
+                    alarm.set_item("t", tick as f64 * dt)?;
+                    alarm.set_item("joint", format!("motor{}", joint + 1))?;
+                    list.append(alarm)?;
+                }
+                info.set_item("actuator_alarms", list)?;
+            }
+            None => info.set_item("actuator_alarms", py.None())?,
+        }
         info.set_item(
             "diverged",
             self.diverged.as_ref().map(|(_, reason)| reason.clone()),

@@ -340,3 +340,27 @@ def test_runs_of_one_scenario_agree_and_a_change_is_seen():
     sc.set("gp.points", 50)
     c = aift.run(sc, method="pl-always", seed=2)
     assert not np.array_equal(a.trajectory["mu1"], c.trajectory["mu1"])
+
+
+def test_step_api_reports_the_methods_actuator_alarms_as_the_summary_does():
+    # A locked joint 2 from 1 s on the paper arm, the hybrid with actuator hypotheses: the step
+    # API's info["actuator_alarms"] at the last tick equals the run's summary.json alarms; a
+    # method without actuator hypotheses reports None.
+    sc = aift.Scenario.default(
+        [
+            "duration=3.0",
+            "faults=[]",
+            'actuator_faults=[{joint=2, kind="locked", start=1.0}]',
+            "hybrid.actuators=true",
+        ]
+    )
+    r = aift.run(sc, method="hybrid", seed=4)
+    expected = r.summary["actuator_alarms"]["alarms"]
+    assert expected, "the locked joint raised no alarm"
+    sim = aift.Sim(sc, method="hybrid")
+    obs, info = sim.reset(seed=4)
+    while not info["done"]:
+        obs, info = sim.step()
+    assert info["actuator_alarms"] == expected
+    _, info = aift.Sim(sc, method="pl-always").reset(seed=4)
+    assert info["actuator_alarms"] is None
