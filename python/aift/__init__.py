@@ -305,8 +305,9 @@ class Sim:
     missing). ``obs`` has ``t``, ``q``, ``qd`` (the plant), ``mu``, ``mu_p`` (the belief),
     ``target``, ``u``, ``y`` (readings, in ``sim.channels`` order) and ``precision``; ``info``
     has ``free_energy``, ``alarm``, ``isolated``, ``actuator_alarms`` (the method's own, None
-    when it infers no actuator health), ``diverged`` and ``done`` (the scenario's last tick). With nothing supplied the ticks equal :func:`run`'s bit for bit. ``method`` may be a
-    method written in Python (an object, reset on each ``reset``, or a class, instantiated on
+    when it infers no actuator health), ``diverged`` and ``done`` (the scenario's last tick).
+    With nothing supplied the ticks equal :func:`run`'s bit for bit. ``method`` may be a method
+    written in Python (an object, reset on each ``reset``, or a class, instantiated on
     each ``reset``; docs/python.md, "Bring your own method").
     """
 

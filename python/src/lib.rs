@@ -1084,7 +1084,7 @@ impl PySim {
                 for &(tick, joint) in alarms {
                     let alarm = PyDict::new(py);
                     alarm.set_item("t", tick as f64 * dt)?;
-                    alarm.set_item("joint", format!("motor{}", joint + 1))?;
+                    alarm.set_item("joint", aift::plant::actuators::motor_name(joint))?;
                     list.append(alarm)?;
                 }
                 info.set_item("actuator_alarms", list)?;

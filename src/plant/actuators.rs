@@ -199,7 +199,7 @@ impl ActuatorFaultSpec {
         self.kind.validate(dt)?;
         let label = joints
             .iter()
-            .map(|j| format!("motor{}", j + 1))
+            .map(|&j| motor_name(j))
             .collect::<Vec<_>>()
             .join("+");
         Ok(ActuatorFault {
@@ -341,4 +341,9 @@ impl Actuators {
             }
         }
     }
+}
+
+/// A joint's motor as summaries, trajectories and the Python API name it: `motor1` for joint 0.
+pub fn motor_name(joint: usize) -> String {
+    format!("motor{}", joint + 1)
 }

@@ -110,13 +110,13 @@ pub fn summary_json(setup: &RunSetup, result: &RunResult) -> serde_json::Value {
             "thresholds": m.thresholds,
             "largest": m.largest,
             "alarms": m.alarms.iter().map(|(t, j)| json!({
-                "t": t, "joint": format!("motor{}", j + 1),
+                "t": t, "joint": crate::plant::actuators::motor_name(*j),
             })).collect::<Vec<_>>(),
             "false_alarms": m.false_alarms,
         })),
         "actuator_alarms": result.actuator_alarms.as_ref().map(|a| json!({
             "alarms": a.iter().map(|(t, j)| json!({
-                "t": t, "joint": format!("motor{}", j + 1),
+                "t": t, "joint": crate::plant::actuators::motor_name(*j),
             })).collect::<Vec<_>>(),
             "false_alarms": result.actuator_false_alarms,
         })),
@@ -402,11 +402,11 @@ fn actuator_fault_json(f: &crate::scenario::ActuatorOutcome) -> serde_json::Valu
         "mse_during": f.mse_during,
         "momentum_detected_at": f.momentum_detected_at,
         "momentum_delay": f.momentum_delay,
-        "momentum_isolated": f.momentum_joint.map(|j| format!("motor{}", j + 1)),
+        "momentum_isolated": f.momentum_joint.map(crate::plant::actuators::motor_name),
         "momentum_isolation_correct": f.momentum_isolation_correct,
         "method_detected_at": f.method_detected_at,
         "method_delay": f.method_delay,
-        "method_isolated": f.method_joint.map(|j| format!("motor{}", j + 1)),
+        "method_isolated": f.method_joint.map(crate::plant::actuators::motor_name),
         "method_isolation_correct": f.method_isolation_correct,
     })
 }
