@@ -206,13 +206,14 @@ impl PlantSettings {
     pub fn describe(&self) -> String {
         match self.engine {
             Engine::Rapier if !self.rapier.obstacles.is_empty() => format!(
-                "rapier ({} solver iterations, contact with {} obstacle(s))",
+                "rapier ({} solver iterations x {} Gauss-Seidel sweeps, contact with {} obstacle(s))",
                 self.rapier.solver_iterations,
+                self.rapier.pgs_iterations,
                 self.rapier.obstacles.len()
             ),
             Engine::Rapier => format!(
-                "rapier ({} solver iterations)",
-                self.rapier.solver_iterations
+                "rapier ({} solver iterations x {} Gauss-Seidel sweeps)",
+                self.rapier.solver_iterations, self.rapier.pgs_iterations
             ),
             Engine::Articulated => format!(
                 "articulated ({}, {} substeps)",

@@ -36,6 +36,11 @@ pub struct RapierSettings {
     /// on the paper arm the error against the closed-form RK4 oracle after 2 s is of order
     /// 1e-5 rad with the default 2 (tests/plant_dynamics.rs).
     pub solver_iterations: usize,
+    /// rapier's `num_internal_pgs_iterations` (>= 1): projected Gauss-Seidel sweeps over the
+    /// joint constraints in each solver iteration. The dry-friction and limit rows of one arm are
+    /// coupled through its mass matrix; one sweep leaves them unconverged, so a joint held by
+    /// friction creeps within the tick while it reports zero velocity (docs/method.md, "Plant").
+    pub pgs_iterations: usize,
     /// Obstacles fixed in the world that the arm's collision shapes touch (contact forces on,
     /// in rapier; the arm's links never collide with each other). The camera does not see them.
     #[serde(skip_serializing_if = "Vec::is_empty")]
@@ -46,6 +51,7 @@ impl Default for RapierSettings {
     fn default() -> Self {
         Self {
             solver_iterations: 2,
+            pgs_iterations: 8,
             obstacles: Vec::new(),
         }
     }
@@ -56,6 +62,12 @@ impl RapierSettings {
         if !(1..=MAX_SOLVER_ITERATIONS).contains(&self.solver_iterations) {
             return Err(crate::SettingError::new(
                 "solver_iterations",
+                format!("must be in 1..={MAX_SOLVER_ITERATIONS}"),
+            ));
+        }
+        if !(1..=MAX_SOLVER_ITERATIONS).contains(&self.pgs_iterations) {
+            return Err(crate::SettingError::new(
+                "pgs_iterations",
                 format!("must be in 1..={MAX_SOLVER_ITERATIONS}"),
             ));
         }
@@ -235,6 +247,7 @@ impl RapierPlant {
         let mut world = PhysicsWorld::new();
         world.gravity = DVec3::from_array(gravity);
         world.integration_parameters.num_solver_iterations = settings.solver_iterations;
+        world.integration_parameters.num_internal_pgs_iterations = settings.pgs_iterations;
         let bodies = insert_bodies(&mut world, &model);
         let mut joints = Vec::with_capacity(model.joints.len());
         for spec in &model.joints {
