@@ -165,3 +165,60 @@ fn the_filter_step_predicts_with_the_transition() {
         }
     }
 }
+
+/// From rest, torques that overcome every joint's Coulomb friction: the implicit model step's
+/// velocity after one tick, dt qdd, equals the articulated plant's Euler step, whose friction is
+/// an impulse bounded by F dt (sliding: the bound), on the Panda. The model's friction ramp
+/// linearised as a damping F / ramp (0.01 rad/s) would oppose the joints with up to
+/// |qd'| / ramp times F instead.
+#[test]
+fn the_implicit_model_step_bounds_the_friction_as_the_plant_does() {
+    // The Panda's joints with Coulomb friction of 0.5-2 N m.
+    let mut arm = (*common::model("urdf/panda_7dof.urdf")).clone();
+    for (i, joint) in arm.joints.iter_mut().enumerate() {
+        joint.friction = 2.0 - 0.25 * i as f64;
+    }
+    let model = Arc::new(arm);
+    let dt = 1e-3;
+    let gravity = [0.0, 0.0, -9.81];
+    let mut t = ArmTransition::new(model.clone(), gravity, 2.0, 0.1, 200.0)
+        .with_step(aift::arm::PredictionStep::Implicit, dt);
+    let mut settings = aift::plant::PlantSettings {
+        engine: Engine::Articulated,
+        ..Default::default()
+    };
+    settings.articulated.integrator = Integrator::Euler;
+    settings.articulated.substeps = 1;
+    let mut plant = aift::plant::build(model.clone(), gravity, &settings).unwrap();
+    let q = [0.3, -0.5, 0.2, -1.9, 0.4, 1.6, -0.7];
+    let (m, g) = aift::arm::Dynamics::new(model.clone(), gravity).mass_matrix_and_gravity(&q);
+    // Torques for a velocity of 0.015-0.025 rad/s after one tick, plus the friction to overcome.
+    let want = nalgebra::DVector::from_vec(vec![0.02, -0.015, 0.025, 0.015, -0.025, 0.02, -0.015]);
+    let inertial = &m * &want / dt;
+    let tau: Vec<f64> = (0..7)
+        .map(|i| g[i] + inertial[i] + model.joints[i].friction * want[i].signum())
+        .collect();
+    for (tau, joint) in tau.iter().zip(&model.joints) {
+        assert!(joint.effort.is_none_or(|e| tau.abs() < e), "{tau} beyond the effort limit");
+    }
+    plant.set_state(&q, &[0.0; 7]);
+    plant.set_torques(&tau);
+    plant.step(dt);
+    let (_, qd1) = plant.state();
+    let x: Vec<f64> = q.iter().chain(&[0.0; 7]).copied().collect();
+    let acc = t.evaluate(&x, &tau).acceleration.unwrap().to_vec();
+    for i in 0..7 {
+        assert!(
+            qd1[i].abs() > aift::arm::dynamics::FRICTION_RAMP,
+            "joint {i} left at {}: the torques must carry every joint out of the ramp",
+            qd1[i]
+        );
+        let model_v = dt * acc[i];
+        eprintln!("joint {i}: model {model_v:.6} plant {:.6}", qd1[i]);
+        assert!(
+            (model_v - qd1[i]).abs() < 1e-9 * qd1[i].abs(),
+            "joint {i}: the model's {model_v} against the plant's {}",
+            qd1[i]
+        );
+    }
+}

@@ -83,6 +83,9 @@ pub struct Dynamics {
     bias: DVector<f64>,
     rhs: DVector<f64>,
     factor: DMatrix<f64>,
+    /// Per joint, the sign of the Coulomb friction the implicit step holds saturated at the
+    /// tick's end (0: linearised inside its ramp, or explicit outside it).
+    friction_end: Vec<f64>,
 }
 
 impl Dynamics {
@@ -109,6 +112,7 @@ impl Dynamics {
             bias: DVector::zeros(n),
             rhs: DVector::zeros(n),
             factor: DMatrix::zeros(n, n),
+            friction_end: vec![0.0; n],
         };
         d.set_configuration(&vec![0.0; n]);
         d
@@ -270,7 +274,11 @@ impl Dynamics {
     /// the end of a step of `h` seconds: (M + h D_eff) qdd = u - bias - D qd - F ramp(qd), the
     /// linearly implicit step the articulated plant takes for its damping (docs/method.md,
     /// "Model error"). The explicit step's velocity v + h qdd is unstable once h D / M > 2 (a
-    /// light joint with heavy damping); this one is not. h = 0 is [`Self::forward_dynamics`].
+    /// light joint with heavy damping); this one is not. The friction stays bounded by F: a
+    /// joint the step carries out of its ramp (|qd + h qdd| > ramp) is solved again with the
+    /// friction saturated at F sign(qd + h qdd) instead of the ramp's damping, which would
+    /// oppose it with (|qd + h qdd| / ramp) F (at most one more solve per joint). h = 0 is
+    /// [`Self::forward_dynamics`].
     pub fn forward_dynamics_implicit(
         &mut self,
         q: &[f64],
@@ -281,14 +289,45 @@ impl Dynamics {
     ) -> bool {
         self.set_configuration(q);
         self.compute(qd);
-        self.fill_rhs(qd, u, Friction::Smooth);
-        let solved = self.solve_shifted(|i, joint| {
-            let mut damping = joint.damping;
-            if joint.friction > 0.0 && qd[i].abs() < FRICTION_RAMP {
-                damping += joint.friction / FRICTION_RAMP;
+        let mut end = std::mem::take(&mut self.friction_end);
+        end.fill(0.0);
+        let mut solved = false;
+        for _ in 0..=qd.len() {
+            self.fill_rhs(qd, u, Friction::Smooth);
+            for (i, joint) in self.model.joints.iter().enumerate() {
+                if end[i] != 0.0 {
+                    // The ramp's F ramp(qd) replaced by the saturated friction.
+                    self.rhs[i] += joint.friction * (qd[i] / FRICTION_RAMP).clamp(-1.0, 1.0)
+                        - joint.friction * end[i];
+                }
             }
-            h * damping
-        });
+            solved = self.solve_shifted(|i, joint| {
+                let mut damping = joint.damping;
+                if joint.friction > 0.0 && qd[i].abs() < FRICTION_RAMP && end[i] == 0.0 {
+                    damping += joint.friction / FRICTION_RAMP;
+                }
+                h * damping
+            });
+            if !solved {
+                break;
+            }
+            let mut left_ramp = false;
+            for (i, joint) in self.model.joints.iter().enumerate() {
+                let v_end = qd[i] + h * self.rhs[i];
+                if joint.friction > 0.0
+                    && qd[i].abs() < FRICTION_RAMP
+                    && end[i] == 0.0
+                    && v_end.abs() > FRICTION_RAMP
+                {
+                    end[i] = v_end.signum();
+                    left_ramp = true;
+                }
+            }
+            if !left_ramp {
+                break;
+            }
+        }
+        self.friction_end = end;
         if solved {
             out.copy_from_slice(self.rhs.as_slice());
         }
@@ -400,6 +439,17 @@ mod tests {
         assert!(d.forward_dynamics_implicit(&[0.2], &[v], &[u], h, &mut a));
         let expected = (u - b * v - f * v / FRICTION_RAMP) / (i + h * (b + f / FRICTION_RAMP));
         assert!((a[0] - expected).abs() <= 1e-12 * expected.abs());
+        // A torque that carries the joint out of the ramp within the tick meets the friction
+        // saturated at F, not the ramp's damping (which would oppose it with 14 F here).
+        let (u_big, v) = (10.0, 0.004);
+        assert!(d.forward_dynamics_implicit(&[0.2], &[v], &[u_big], h, &mut a));
+        let expected = (u_big - b * v - f) / (i + h * b);
+        assert!((a[0] - expected).abs() <= 1e-12 * expected.abs(), "{} {expected}", a[0]);
+        assert!(v + h * a[0] > FRICTION_RAMP);
+        // And backwards: from inside the ramp, a torque driving it out the other way.
+        assert!(d.forward_dynamics_implicit(&[0.2], &[v], &[-u_big], h, &mut a));
+        let expected = (-u_big - b * v + f) / (i + h * b);
+        assert!((a[0] - expected).abs() <= 1e-12 * expected.abs(), "{} {expected}", a[0]);
         // h = 0 is the explicit forward dynamics, bit for bit.
         let mut e = [0.0];
         assert!(d.forward_dynamics(&[0.2], &[0.5], &[u], &mut e));
