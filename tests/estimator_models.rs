@@ -199,7 +199,10 @@ fn the_implicit_model_step_bounds_the_friction_as_the_plant_does() {
         .map(|i| g[i] + inertial[i] + model.joints[i].friction * want[i].signum())
         .collect();
     for (tau, joint) in tau.iter().zip(&model.joints) {
-        assert!(joint.effort.is_none_or(|e| tau.abs() < e), "{tau} beyond the effort limit");
+        assert!(
+            joint.effort.is_none_or(|e| tau.abs() < e),
+            "{tau} beyond the effort limit"
+        );
     }
     plant.set_state(&q, &[0.0; 7]);
     plant.set_torques(&tau);

@@ -444,12 +444,20 @@ mod tests {
         let (u_big, v) = (10.0, 0.004);
         assert!(d.forward_dynamics_implicit(&[0.2], &[v], &[u_big], h, &mut a));
         let expected = (u_big - b * v - f) / (i + h * b);
-        assert!((a[0] - expected).abs() <= 1e-12 * expected.abs(), "{} {expected}", a[0]);
+        assert!(
+            (a[0] - expected).abs() <= 1e-12 * expected.abs(),
+            "{} {expected}",
+            a[0]
+        );
         assert!(v + h * a[0] > FRICTION_RAMP);
         // And backwards: from inside the ramp, a torque driving it out the other way.
         assert!(d.forward_dynamics_implicit(&[0.2], &[v], &[-u_big], h, &mut a));
         let expected = (-u_big - b * v + f) / (i + h * b);
-        assert!((a[0] - expected).abs() <= 1e-12 * expected.abs(), "{} {expected}", a[0]);
+        assert!(
+            (a[0] - expected).abs() <= 1e-12 * expected.abs(),
+            "{} {expected}",
+            a[0]
+        );
         // h = 0 is the explicit forward dynamics, bit for bit.
         let mut e = [0.0];
         assert!(d.forward_dynamics(&[0.2], &[0.5], &[u], &mut e));
