@@ -425,39 +425,28 @@ mod tests {
         let mut d = Dynamics::new(Arc::new(model), [0.0, 0.0, -9.81]);
         let (i, b, f, h) = (1e-4, 20.0, 0.5, 1e-3);
         let mut a = [0.0];
+        let close = |a: f64, expected: f64| (a - expected).abs() <= 1e-12 * expected.abs();
         // Outside the friction ramp (|v| >= 0.01): D_eff = D.
         let (u, v) = (0.3, 0.5);
         assert!(d.forward_dynamics_implicit(&[0.2], &[v], &[u], h, &mut a));
         let expected = (u - b * v - f) / (i + h * b);
-        assert!(
-            (a[0] - expected).abs() <= 1e-12 * expected.abs(),
-            "{} {expected}",
-            a[0]
-        );
+        assert!(close(a[0], expected), "{} {expected}", a[0]);
         // Inside it: D_eff = D + F / ramp.
         let v = 0.004;
         assert!(d.forward_dynamics_implicit(&[0.2], &[v], &[u], h, &mut a));
         let expected = (u - b * v - f * v / FRICTION_RAMP) / (i + h * (b + f / FRICTION_RAMP));
-        assert!((a[0] - expected).abs() <= 1e-12 * expected.abs());
+        assert!(close(a[0], expected), "{} {expected}", a[0]);
         // A torque that carries the joint out of the ramp within the tick meets the friction
         // saturated at F, not the ramp's damping (which would oppose it with 14 F here).
         let (u_big, v) = (10.0, 0.004);
         assert!(d.forward_dynamics_implicit(&[0.2], &[v], &[u_big], h, &mut a));
         let expected = (u_big - b * v - f) / (i + h * b);
-        assert!(
-            (a[0] - expected).abs() <= 1e-12 * expected.abs(),
-            "{} {expected}",
-            a[0]
-        );
+        assert!(close(a[0], expected), "{} {expected}", a[0]);
         assert!(v + h * a[0] > FRICTION_RAMP);
         // And backwards: from inside the ramp, a torque driving it out the other way.
         assert!(d.forward_dynamics_implicit(&[0.2], &[v], &[-u_big], h, &mut a));
         let expected = (-u_big - b * v + f) / (i + h * b);
-        assert!(
-            (a[0] - expected).abs() <= 1e-12 * expected.abs(),
-            "{} {expected}",
-            a[0]
-        );
+        assert!(close(a[0], expected), "{} {expected}", a[0]);
         // h = 0 is the explicit forward dynamics, bit for bit.
         let mut e = [0.0];
         assert!(d.forward_dynamics(&[0.2], &[0.5], &[u], &mut e));
