@@ -205,16 +205,16 @@ impl PlantSettings {
     /// A short description for tables and reports: `articulated (euler, 2 substeps)`.
     pub fn describe(&self) -> String {
         match self.engine {
-            Engine::Rapier if !self.rapier.obstacles.is_empty() => format!(
-                "rapier ({} solver iterations x {} Gauss-Seidel sweeps, contact with {} obstacle(s))",
-                self.rapier.solver_iterations,
-                self.rapier.pgs_iterations,
-                self.rapier.obstacles.len()
-            ),
-            Engine::Rapier => format!(
-                "rapier ({} solver iterations x {} Gauss-Seidel sweeps)",
-                self.rapier.solver_iterations, self.rapier.pgs_iterations
-            ),
+            Engine::Rapier => {
+                let contact = match self.rapier.obstacles.len() {
+                    0 => String::new(),
+                    k => format!(", contact with {k} obstacle(s)"),
+                };
+                format!(
+                    "rapier ({} solver iterations x {} Gauss-Seidel sweeps{contact})",
+                    self.rapier.solver_iterations, self.rapier.pgs_iterations
+                )
+            }
             Engine::Articulated => format!(
                 "articulated ({}, {} substeps)",
                 match self.articulated.integrator {

@@ -59,17 +59,16 @@ impl Default for RapierSettings {
 
 impl RapierSettings {
     pub fn validate(&self) -> Result<(), crate::SettingError> {
-        if !(1..=MAX_SOLVER_ITERATIONS).contains(&self.solver_iterations) {
-            return Err(crate::SettingError::new(
-                "solver_iterations",
-                format!("must be in 1..={MAX_SOLVER_ITERATIONS}"),
-            ));
-        }
-        if !(1..=MAX_SOLVER_ITERATIONS).contains(&self.pgs_iterations) {
-            return Err(crate::SettingError::new(
-                "pgs_iterations",
-                format!("must be in 1..={MAX_SOLVER_ITERATIONS}"),
-            ));
+        for (key, value) in [
+            ("solver_iterations", self.solver_iterations),
+            ("pgs_iterations", self.pgs_iterations),
+        ] {
+            if !(1..=MAX_SOLVER_ITERATIONS).contains(&value) {
+                return Err(crate::SettingError::new(
+                    key,
+                    format!("must be in 1..={MAX_SOLVER_ITERATIONS}"),
+                ));
+            }
         }
         if self.obstacles.len() > MAX_OBSTACLES {
             return Err(crate::SettingError::new(
