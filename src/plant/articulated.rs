@@ -191,7 +191,7 @@ impl ArticulatedPlant {
             self.columns.set_column(k, self.dynamics.rhs_mut());
         }
         self.friction_impulse.fill(0.0);
-        for _ in 0..8 {
+        for _ in 0..super::GAUSS_SEIDEL_SWEEPS {
             for (k, &i) in engaged.iter().enumerate() {
                 let w = self.columns[(i, k)];
                 if w <= 0.0 {

@@ -33,6 +33,11 @@ pub use rapier::{
 use crate::arm::ArmModel;
 pub use crate::arm::kinematics::ArmPose;
 
+/// Projected Gauss-Seidel sweeps over a tick's coupled joint constraints (dry friction, limits,
+/// brakes): the articulated plant's impulse solve and the rapier plant's default
+/// `pgs_iterations` (docs/method.md, "Plant").
+pub const GAUSS_SEIDEL_SWEEPS: usize = 8;
+
 /// A simulated arm. Its [`ArmPose`] is the truth: the model it was built from and where its
 /// bodies are.
 pub trait Plant: ArmPose + Send {

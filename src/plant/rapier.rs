@@ -51,7 +51,7 @@ impl Default for RapierSettings {
     fn default() -> Self {
         Self {
             solver_iterations: 2,
-            pgs_iterations: 8,
+            pgs_iterations: super::GAUSS_SEIDEL_SWEEPS,
             obstacles: Vec::new(),
         }
     }
