@@ -15,17 +15,7 @@ use std::path::Path;
 /// from 8 s appended: the scenario's path and the faulted joint (1-based), or None where `init`
 /// refuses the arm.
 fn faulted_arm(seed: u64, dir: &Path) -> Option<(String, usize)> {
-    let urdf = format!("arm{seed}.urdf");
-    let scenario = format!("arm{seed}.toml");
-    common::aift_ok(
-        &["gen-arm", "--seed", &seed.to_string(), "--out", &urdf],
-        dir,
-    );
-    let init = common::aift_in(&["init", "--urdf", &urdf, "--out", &scenario], dir);
-    if init.status.code() != Some(0) {
-        return None;
-    }
-    let n = aift::arm::load_urdf(&dir.join(&urdf)).unwrap().joints.len();
+    let (scenario, n) = common::generated_arm(seed, dir)?;
     let mut text = std::fs::read_to_string(dir.join(&scenario)).unwrap();
     text += &format!(
         "\n[[faults]]\nchannel = \"enc{n}\"\nkind = \"bias\"\noffset = 0.05\nstart = 8.0\n"

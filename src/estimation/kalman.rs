@@ -194,6 +194,8 @@ pub struct Ekf {
     pub x: DVector<f64>,
     pub p: DMatrix<f64>,
     initialised: bool,
+    /// Whether the state carries each joint's model-error acceleration after [q, qd].
+    model_error_state: bool,
     // Scratch.
     x_pred: DVector<f64>,
     p_pred: DMatrix<f64>,
@@ -218,6 +220,7 @@ impl Ekf {
             x: DVector::zeros(d),
             p: DMatrix::zeros(d, d),
             initialised: false,
+            model_error_state: false,
             x_pred: DVector::zeros(d),
             p_pred: DMatrix::zeros(d, d),
             g: vec![0.0; r],
@@ -226,6 +229,32 @@ impl Ekf {
             innovation: vec![None; layout.len()],
             innovation_variance: vec![None; layout.len()],
         }
+    }
+
+    /// The same filter with each joint's model-error acceleration as a state after [q, qd]
+    /// (docs/method.md, "Model error as a state"): x = [q, qd, e], the prediction adds e to the
+    /// model's acceleration, e is a random walk whose step is the transition's
+    /// [`super::models::CorrelatedError::step`], and only the white part of its noise stays white.
+    /// e starts at 0 with variance 0: the first prediction's step is the whole parameter error.
+    pub fn with_model_error_state(mut self) -> Self {
+        let d = 3 * self.n();
+        self.model_error_state = true;
+        self.x = DVector::zeros(d);
+        self.p = DMatrix::zeros(d, d);
+        self.x_pred = DVector::zeros(d);
+        self.p_pred = DMatrix::zeros(d, d);
+        self.ph = DVector::zeros(d);
+        self
+    }
+
+    /// Whether the state carries the model error ([`Self::with_model_error_state`]).
+    pub fn has_model_error_state(&self) -> bool {
+        self.model_error_state
+    }
+
+    /// The joint state [q, qd] (without the model-error state).
+    pub fn joint_state(&self) -> &[f64] {
+        &self.x.as_slice()[..2 * self.n()]
     }
 
     pub fn n(&self) -> usize {
@@ -245,6 +274,7 @@ impl Ekf {
     pub fn initialise(&mut self, readings: &Readings, variances: &[f64]) {
         let n = self.n();
         self.p.fill(0.0);
+        self.x.fill(0.0);
         for i in 0..n {
             for (k, c) in [(i, i), (n + i, n + i)] {
                 match readings.get(c) {
@@ -271,6 +301,9 @@ impl Ekf {
 
     /// [`Self::predict`] with joint i's process noise (standard deviation) scaled by `scale(i)`.
     pub fn predict_scaled(&mut self, transition: &Transition<'_>, scale: impl Fn(usize) -> f64) {
+        if self.model_error_state {
+            return self.predict_with_model_error(transition, scale);
+        }
         let n = self.n();
         let dt = self.dt;
         let acc = transition.acceleration;
@@ -299,6 +332,79 @@ impl Ekf {
             q[(i, n + i)] += s2 * dt.powi(3) / 2.0;
             q[(n + i, i)] += s2 * dt.powi(3) / 2.0;
             q[(n + i, n + i)] += s2 * dt * dt;
+        }
+        self.x.copy_from(&self.x_pred);
+        self.p.copy_from(&self.p_pred);
+    }
+
+    /// [`Self::predict_scaled`] on x = [q, qd, e]: F = [[I, dt I, dt^2/2 I], [0, I, dt I], [0, 0,
+    /// I]], the white part of the noise on [q, qd] as there, e's step on e.
+    fn predict_with_model_error(
+        &mut self,
+        transition: &Transition<'_>,
+        scale: impl Fn(usize) -> f64,
+    ) {
+        let n = self.n();
+        let d = 3 * n;
+        let dt = self.dt;
+        let h = 0.5 * dt * dt;
+        let acc = transition.acceleration;
+        for i in 0..n {
+            let a = acc.map_or(0.0, |a| a[i]) + self.x[2 * n + i];
+            self.x_pred[i] = self.x[i] + dt * self.x[n + i] + h * a;
+            self.x_pred[n + i] = self.x[n + i] + dt * a;
+            self.x_pred[2 * n + i] = self.x[2 * n + i];
+        }
+        // The model error steps at the tick's start (it drives this tick's motion), then
+        // P = F P F' + Q: T = F P by rows, then T F' by columns.
+        let q = &mut self.p_pred;
+        q.copy_from(&self.p);
+        if let Some(c) = transition.correlated {
+            for i in 0..n {
+                q[(2 * n + i, 2 * n + i)] += c.step[i] * c.step[i];
+            }
+        }
+        for c in 0..d {
+            for i in 0..n {
+                let (pq, pv, pe) = (q[(i, c)], q[(n + i, c)], q[(2 * n + i, c)]);
+                q[(i, c)] = pq + dt * pv + h * pe;
+                q[(n + i, c)] = pv + dt * pe;
+            }
+        }
+        for r in 0..d {
+            for i in 0..n {
+                let (tq, tv, te) = (q[(r, i)], q[(r, n + i)], q[(r, 2 * n + i)]);
+                q[(r, i)] = tq + dt * tv + h * te;
+                q[(r, n + i)] = tv + dt * te;
+            }
+        }
+        // The two passes round differently above and below the diagonal: one number for both.
+        for c in 0..d {
+            for r in 0..c {
+                let v = 0.5 * (q[(r, c)] + q[(c, r)]);
+                q[(r, c)] = v;
+                q[(c, r)] = v;
+            }
+        }
+        let white = transition.correlated.map_or(transition.noise, |c| c.white);
+        for i in 0..n {
+            // A hypothesis that scales a joint's noise says its torque is not the model's: all
+            // of the model's noise, scaled, is white there.
+            let k = scale(i);
+            let s = if k == 1.0 {
+                white[i]
+            } else {
+                k * transition.noise[i]
+            };
+            let s2 = s * s;
+            q[(i, i)] += s2 * dt.powi(4) / 4.0;
+            q[(i, n + i)] += s2 * dt.powi(3) / 2.0;
+            q[(n + i, i)] += s2 * dt.powi(3) / 2.0;
+            q[(n + i, n + i)] += s2 * dt * dt;
+            // How the motion within the tick is integrated: dt^2 / 2 a for a constant
+            // acceleration, up to dt^2 a for a semi-implicit Euler step (the plants').
+            let a = acc.map_or(0.0, |a| a[i]) + self.x[2 * n + i];
+            q[(i, i)] += (h * a).powi(2);
         }
         self.x.copy_from(&self.x_pred);
         self.p.copy_from(&self.p_pred);
@@ -356,7 +462,7 @@ impl Ekf {
             Channel::Tachometer(i) => self.ph.copy_from(&self.p.column(n + i)),
             Channel::Camera(r) => {
                 self.ph.fill(0.0);
-                for a in 0..2 * n {
+                for a in 0..self.x.len() {
                     let mut s = 0.0;
                     for b in 0..n {
                         s += self.p[(a, b)] * self.jac[r * n + b];
@@ -866,6 +972,121 @@ mod tests {
             let want = x[i] + dt * x[2 + i] + 0.5 * dt * dt * expected[i];
             assert!((ekf.x[i] - want).abs() < 1e-15, "{} {want}", ekf.x[i]);
             assert!((ekf.x[2 + i] - (x[2 + i] + dt * expected[i])).abs() < 1e-15);
+        }
+    }
+
+    /// With the model-error state, the prediction is x' = F x + [dt^2/2 a, dt a, 0] and P' = F
+    /// (P + diag(0, 0, step^2)) F' + Q, against dense matrices built here: F = [[I, dt I, dt^2/2
+    /// I], [0, I, dt I], [0, 0, I]], Q the white noise on [q, qd] and (dt^2/2 (a + e))^2 on q.
+    #[test]
+    fn the_model_error_state_predicts_as_the_dense_equations() {
+        let n = 2;
+        let layout = ChannelLayout::new(n, CameraModel::Pinhole);
+        let dt = 1e-3;
+        let h = 0.5 * dt * dt;
+        let mut ekf = Ekf::new(toy_observation(layout), dt).with_model_error_state();
+        assert_eq!((ekf.x.len(), ekf.p.nrows()), (3 * n, 3 * n));
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let unit = Normal::new(0.0, 1.0).unwrap();
+        let a = DMatrix::from_fn(3 * n, 3 * n, |_, _| unit.sample(&mut rng));
+        let p0 = &a * a.transpose() + DMatrix::identity(3 * n, 3 * n);
+        let x0 = DVector::from_fn(3 * n, |_, _| unit.sample(&mut rng));
+        ekf.p.copy_from(&p0);
+        ekf.x.copy_from(&x0);
+        let (acc, noise, white, step) = ([30.0, -4.0], [9.0, 7.0], [2.0, 3.0], [5.0, 0.5]);
+        let t = Transition {
+            acceleration: Some(&acc),
+            noise: &noise,
+            correlated: Some(crate::estimation::models::CorrelatedError {
+                white: &white,
+                step: &step,
+            }),
+        };
+        ekf.predict(&t, 1.0);
+        let mut f = DMatrix::identity(3 * n, 3 * n);
+        let mut q = DMatrix::zeros(3 * n, 3 * n);
+        let mut stepped = p0.clone();
+        for i in 0..n {
+            f[(i, n + i)] = dt;
+            f[(i, 2 * n + i)] = h;
+            f[(n + i, 2 * n + i)] = dt;
+            stepped[(2 * n + i, 2 * n + i)] += step[i] * step[i];
+            let w2 = white[i] * white[i];
+            let total = acc[i] + x0[2 * n + i];
+            q[(i, i)] = w2 * dt.powi(4) / 4.0 + (h * total).powi(2);
+            q[(i, n + i)] = w2 * dt.powi(3) / 2.0;
+            q[(n + i, i)] = w2 * dt.powi(3) / 2.0;
+            q[(n + i, n + i)] = w2 * dt * dt;
+        }
+        let mut x = &f * &x0;
+        for i in 0..n {
+            x[i] += h * acc[i];
+            x[n + i] += dt * acc[i];
+        }
+        let p = &f * stepped * f.transpose() + q;
+        assert!((&ekf.x - &x).amax() < 1e-14, "{} {}", ekf.x, x);
+        assert!((&ekf.p - &p).amax() < 1e-12 * p.amax(), "{} {}", ekf.p, p);
+        assert_eq!(ekf.p, ekf.p.transpose());
+        assert_eq!(ekf.joint_state(), &ekf.x.as_slice()[..2 * n]);
+    }
+
+    /// A fixed model error is the model-error state's fixed point: the arm accelerates at the
+    /// model's acceleration plus a constant c the model does not know, encoders and tachometers
+    /// read it with their noise, and the filter's e converges to c (within 3 of its standard
+    /// deviations, which shrink well below the error's size), while e stays 0 without one.
+    #[test]
+    fn the_model_error_state_learns_a_fixed_model_error() {
+        let n = 2;
+        let layout = ChannelLayout::new(n, CameraModel::Pinhole);
+        let dt = 1e-3;
+        let var = [1e-6, 1e-6, 1e-6, 1e-6, f64::INFINITY, f64::INFINITY];
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let unit = Normal::new(0.0, 1.0).unwrap();
+        for c in [[40.0, -25.0], [0.0, 0.0]] {
+            let mut ekf = Ekf::new(toy_observation(layout), dt).with_model_error_state();
+            let (mut q, mut v) = ([0.2, -0.1], [0.0, 0.0]);
+            let mut readings = Readings::missing(&layout);
+            for k in 0..3000 {
+                // The model's acceleration: a slow oscillation it knows.
+                let t = k as f64 * dt;
+                let acc = [3.0 * (2.0 * t).sin(), -2.0 * (3.0 * t).cos()];
+                if k > 0 {
+                    for i in 0..n {
+                        q[i] += dt * v[i] + 0.5 * dt * dt * (acc[i] + c[i]);
+                        v[i] += dt * (acc[i] + c[i]);
+                    }
+                }
+                let truth = [q[0], q[1], v[0], v[1]];
+                for (ch, y) in truth.iter().enumerate() {
+                    readings.values[ch] = Some(y + var[ch].sqrt() * unit.sample(&mut rng));
+                }
+                if !ekf.initialised() {
+                    ekf.initialise(&readings, &var);
+                    continue;
+                }
+                // The whole parameter error (100 rad/s^2) at the first step, none after.
+                let step = if k == 1 { [100.0; 2] } else { [0.0; 2] };
+                let t = Transition {
+                    acceleration: Some(&acc),
+                    noise: &[100.0; 2],
+                    correlated: Some(crate::estimation::models::CorrelatedError {
+                        white: &[2.0; 2],
+                        step: &step,
+                    }),
+                };
+                ekf.predict(&t, 1.0);
+                ekf.linearise();
+                ekf.update(&readings, &var);
+            }
+            for i in 0..n {
+                let (e, sd) = (ekf.x[2 * n + i], ekf.p[(2 * n + i, 2 * n + i)].sqrt());
+                assert!(
+                    (e - c[i]).abs() < 3.0 * sd,
+                    "joint {i}: e {e} sd {sd}, c {}",
+                    c[i]
+                );
+                assert!(sd < 2.0, "joint {i}: sd {sd}");
+            }
         }
     }
 

@@ -27,6 +27,18 @@ use crate::sensors::ChannelLayout;
 pub struct Transition<'a> {
     pub acceleration: Option<&'a [f64]>,
     pub noise: &'a [f64],
+    /// The same noise split for a filter that carries the model error as a state
+    /// ([`super::kalman::Ekf::with_model_error_state`]); None: all of it is white.
+    pub correlated: Option<CorrelatedError<'a>>,
+}
+
+/// A transition's noise for a filter that carries each joint's model-error acceleration as a
+/// state (docs/method.md, "Model error as a state"): the white part, and the standard deviation
+/// of the model error's change over the tick (rad/s^2), a random walk's step.
+#[derive(Clone, Copy, Debug)]
+pub struct CorrelatedError<'a> {
+    pub white: &'a [f64],
+    pub step: &'a [f64],
 }
 
 /// How the joint state moves over one tick.
@@ -34,6 +46,10 @@ pub trait TransitionModel: Send {
     /// The transition at x = [q, qd] under the torques applied over the tick. Evaluated once
     /// and shared by as many filters as predict from it (a bank's hypotheses).
     fn evaluate(&mut self, x: &[f64], torques: &[f64]) -> Transition<'_>;
+
+    /// The standard deviation of each joint's velocity at the state the next [`Self::evaluate`]
+    /// is given (a joint that may be at rest may be stuck); ignored by default.
+    fn set_velocity_spread(&mut self, _spread: &[f64]) {}
 }
 
 /// Constant velocity with white acceleration noise: the discrete white-noise acceleration model,
@@ -57,6 +73,7 @@ impl TransitionModel for ConstantVelocity {
         Transition {
             acceleration: None,
             noise: &self.noise,
+            correlated: None,
         }
     }
 }
@@ -85,6 +102,22 @@ pub struct ArmTransition {
     column: Vec<f64>,
     /// The step of the implicit prediction (s); 0: explicit.
     implicit_step: f64,
+    /// The white part of the noise (the floor and the relative term) and the model error's
+    /// step over the tick ([`CorrelatedError`]).
+    white: Vec<f64>,
+    step: Vec<f64>,
+    /// Per joint, the signed parameter-error torques of the last evaluation (inertial, mass
+    /// bias, centre of mass, damping, friction), and the variance of their change.
+    terms: Vec<[f64; 5]>,
+    terms_set: bool,
+    torque_step: Vec<f64>,
+    step_var: Vec<f64>,
+    /// Per joint, the stiction band's torque variance (F^2 / 3 within the friction ramp), and
+    /// its acceleration variance (white).
+    stiction: Vec<f64>,
+    stiction_var: Vec<f64>,
+    /// Per joint, the velocity's standard deviation at the evaluated state.
+    velocity_spread: Vec<f64>,
 }
 
 impl ArmTransition {
@@ -111,6 +144,15 @@ impl ArmTransition {
             torque_error: vec![0.0; n],
             column: vec![0.0; n],
             implicit_step: 0.0,
+            white: vec![0.0; n],
+            step: vec![0.0; n],
+            terms: vec![[0.0; 5]; n],
+            terms_set: false,
+            torque_step: vec![0.0; n],
+            step_var: vec![0.0; n],
+            stiction: vec![0.0; n],
+            stiction_var: vec![0.0; n],
+            velocity_spread: vec![0.0; n],
         }
     }
 
@@ -138,7 +180,12 @@ impl ArmTransition {
     }
 
     /// The per-joint acceleration error of the model's parameter errors at the state last
-    /// evaluated, into `noise` as a lower bound.
+    /// evaluated, into `noise` as a lower bound; and the standard deviation of its change since
+    /// the last evaluation into `step` (the first evaluation: all of it). A parameter error is
+    /// fixed, so the torque error it makes moves only as its regressor does: the change of
+    /// u_k r_k (the inertial torque, the bias, the damping and the signed friction ramp) over
+    /// the tick is u_k (r_k - r_k,last); the centre-of-mass term is a bound and does not step
+    /// (docs/method.md, "Model error as a state").
     fn parameter_noise(&mut self, qd: &[f64], torques: &[f64]) {
         let u = self.uncertainty;
         let model = self.dynamics.model().clone();
@@ -153,25 +200,71 @@ impl ArmTransition {
                 u.friction * joint.friction,
             ];
             self.torque_error[j] = terms.iter().map(|t| t * t).sum::<f64>();
+            // The friction the model applied over the tick (the ramp at the tick's end velocity,
+            // saturated, as the implicit step takes it): where the model's friction moves (a
+            // joint it sees reverse, stick or slip) the truth need not, so the error moves by
+            // all of it, not by its parameter error.
+            let end = qd[j] + self.implicit_step * self.acceleration[j];
+            let ramp = crate::arm::dynamics::FRICTION_RAMP;
+            let signed = [
+                terms[0],
+                terms[1],
+                terms[2],
+                terms[3],
+                joint.friction * (end / ramp).clamp(-1.0, 1.0),
+            ];
+            self.torque_step[j] = if self.terms_set {
+                signed
+                    .iter()
+                    .zip(&self.terms[j])
+                    .map(|(a, b)| (a - b) * (a - b))
+                    .sum::<f64>()
+            } else {
+                self.torque_error[j]
+            };
+            self.terms[j] = signed;
+            // Within the friction ramp the joint sticks or slips: its friction is anywhere in
+            // [-F, F] (variance F^2 / 3), whatever the model's ramp says, and changes as it does.
+            let band = crate::arm::dynamics::FRICTION_RAMP + 3.0 * self.velocity_spread[j];
+            self.stiction[j] = if qd[j].abs() < band {
+                joint.friction * joint.friction / 3.0
+            } else {
+                terms[4] * terms[4]
+            };
         }
+        self.terms_set = true;
         let n = self.noise.len();
         let mut var = std::mem::take(&mut self.acceleration_var);
+        let mut step_var = std::mem::take(&mut self.step_var);
+        let mut stiction_var = std::mem::take(&mut self.stiction_var);
         var.iter_mut().for_each(|v| *v = 0.0);
+        step_var.iter_mut().for_each(|v| *v = 0.0);
+        stiction_var.iter_mut().for_each(|v| *v = 0.0);
         for j in 0..n {
-            if self.torque_error[j] == 0.0 {
+            if self.torque_error[j] == 0.0 && self.torque_step[j] == 0.0 {
                 continue;
             }
             self.column.fill(0.0);
             self.column[j] = 1.0;
             self.dynamics.solve_factored(&mut self.column);
-            for (v, m) in var.iter_mut().zip(&self.column) {
-                *v += m * m * self.torque_error[j];
+            for (k, m) in self.column.iter().enumerate() {
+                var[k] += m * m * self.torque_error[j];
+                step_var[k] += m * m * self.torque_step[j];
+                stiction_var[k] += m * m * self.stiction[j];
             }
         }
+        for (w, v) in self.white.iter_mut().zip(&stiction_var) {
+            *w = (*w * *w + v).sqrt();
+        }
+        self.stiction_var = stiction_var;
         for (s, v) in self.noise.iter_mut().zip(&var) {
             *s = s.max(v.sqrt());
         }
+        for (s, v) in self.step.iter_mut().zip(&step_var) {
+            *s = v.sqrt();
+        }
         self.acceleration_var = var;
+        self.step_var = step_var;
     }
 
     /// The arm model it predicts with.
@@ -193,6 +286,10 @@ impl ArmTransition {
 }
 
 impl TransitionModel for ArmTransition {
+    fn set_velocity_spread(&mut self, spread: &[f64]) {
+        self.velocity_spread.copy_from_slice(spread);
+    }
+
     fn evaluate(&mut self, x: &[f64], torques: &[f64]) -> Transition<'_> {
         let n = self.noise.len();
         let (q, qd) = (&x[..n], &x[n..]);
@@ -214,12 +311,22 @@ impl TransitionModel for ArmTransition {
         for (s, a) in self.noise.iter_mut().zip(&self.acceleration) {
             *s = self.floor.max(self.relative * a.abs());
         }
-        if !self.uncertainty.is_zero() {
-            self.parameter_noise(&x[n..], torques);
+        if self.uncertainty.is_zero() {
+            return Transition {
+                acceleration: Some(&self.acceleration),
+                noise: &self.noise,
+                correlated: None,
+            };
         }
+        self.white.copy_from_slice(&self.noise);
+        self.parameter_noise(&x[n..], torques);
         Transition {
             acceleration: Some(&self.acceleration),
             noise: &self.noise,
+            correlated: Some(CorrelatedError {
+                white: &self.white,
+                step: &self.step,
+            }),
         }
     }
 }
@@ -327,12 +434,15 @@ mod tests {
         assert_eq!(tr.noise, &[200.0, 200.0]);
     }
 
-    /// The process noise of an uncertain model against a direct evaluation: the torque errors
-    /// of each assumed parameter error carried through M^-1 from nalgebra's inverse.
-    #[test]
-    fn the_parameter_noise_is_the_torque_error_carried_through_the_inverse_mass_matrix() {
+    /// The spatial 3-DOF arm (joint 3 given Coulomb friction `friction`), the default model
+    /// error's sizes, gravity and its transition with no floor or relative term.
+    fn uncertain_spatial_arm(
+        friction: f64,
+    ) -> (Arc<ArmModel>, ModelUncertainty, [f64; 3], ArmTransition) {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("urdf/spatial_3dof.urdf");
-        let model = Arc::new(crate::arm::load_urdf(&path).unwrap());
+        let mut arm = crate::arm::load_urdf(&path).unwrap();
+        arm.joints[2].friction = friction;
+        let model = Arc::new(arm);
         let u = ModelUncertainty {
             mass: 0.15,
             inertia: 0.3,
@@ -341,7 +451,15 @@ mod tests {
             friction: 0.3,
         };
         let g = [0.0, 0.0, -9.81];
-        let mut t = ArmTransition::new(model.clone(), g, 0.0, 0.0, 200.0).with_uncertainty(u);
+        let t = ArmTransition::new(model.clone(), g, 0.0, 0.0, 200.0).with_uncertainty(u);
+        (model, u, g, t)
+    }
+
+    /// The process noise of an uncertain model against a direct evaluation: the torque errors
+    /// of each assumed parameter error carried through M^-1 from nalgebra's inverse.
+    #[test]
+    fn the_parameter_noise_is_the_torque_error_carried_through_the_inverse_mass_matrix() {
+        let (model, u, g, mut t) = uncertain_spatial_arm(0.0);
         let x = [0.3, -0.7, 0.4, 0.5, -1.0, 0.8];
         let tau = [4.0, -3.0, 1.0];
         let noise = t.evaluate(&x, &tau).noise.to_vec();
@@ -373,5 +491,54 @@ mod tests {
             com[0] >= com[1] && com[1] >= com[2] && com[2] > 0.0,
             "{com:?}"
         );
+    }
+
+    /// The model error's step (for a filter that carries it as a state): at the first
+    /// evaluation the whole parameter error; then, at the same state with joint 1's torque raised
+    /// by d, only the inertial term moves, by max(mass, inertia) d through M^-1's column 1. The
+    /// white part is the floor and, for a joint whose velocity may be 0 (within the friction
+    /// ramp plus 3 of its spreads), its stiction band F^2 / 3 through M^-1 (outside, the
+    /// parameter error of F).
+    #[test]
+    fn the_model_error_steps_as_its_regressors_move() {
+        let (model, u, g, mut t) = uncertain_spatial_arm(0.5);
+        let x = [0.3, -0.7, 0.4, 0.5, -1.0, 0.8];
+        let tau = [4.0, -3.0, 1.0];
+        let first = t.evaluate(&x, &tau);
+        let c = first.correlated.unwrap();
+        assert_eq!(c.step, first.noise);
+        let mut d = Dynamics::new(model.clone(), g);
+        d.set_configuration(&x[..3]);
+        d.compute(&x[3..]);
+        let minv = d.mass_matrix().clone().try_inverse().unwrap();
+        // Joint 2 moves at 0.8 rad/s: outside the band, its friction's parameter error.
+        for (i, w) in c.white.iter().enumerate() {
+            let want = (minv[(i, 2)] * u.friction * 0.5).abs();
+            assert!(
+                (w - want).abs() < 1e-9 * want,
+                "joint {i}: {w} against {want}"
+            );
+        }
+        let d_tau = 2.5;
+        let raised = [tau[0], tau[1] + d_tau, tau[2]];
+        let step = t.evaluate(&x, &raised).correlated.unwrap().step.to_vec();
+        for (i, s) in step.iter().enumerate() {
+            let want = (minv[(i, 1)] * u.inertia * d_tau).abs();
+            assert!(
+                (s - want).abs() < 1e-9 * want,
+                "joint {i}: {s} against {want}"
+            );
+        }
+        assert_eq!(t.evaluate(&x, &raised).correlated.unwrap().step, [0.0; 3]);
+        // A velocity spread that puts joint 2 within reach of rest: the stiction band.
+        t.set_velocity_spread(&[0.0, 0.0, 0.5]);
+        let white = t.evaluate(&x, &raised).correlated.unwrap().white.to_vec();
+        for (i, w) in white.iter().enumerate() {
+            let want = (minv[(i, 2)] * 0.5 / 3f64.sqrt()).abs();
+            assert!(
+                (w - want).abs() < 1e-9 * want,
+                "joint {i}: {w} against {want}"
+            );
+        }
     }
 }

@@ -267,6 +267,23 @@ pub fn aift_ok(args: &[&str], dir: &std::path::Path) -> std::process::Output {
     out
 }
 
+/// `aift gen-arm --seed seed` and `aift init` in `dir` (files `arm{seed}.urdf`, `arm{seed}.toml`):
+/// the scenario's file name and the joint count, or None where `init` refuses the arm.
+pub fn generated_arm(seed: u64, dir: &std::path::Path) -> Option<(String, usize)> {
+    let urdf = format!("arm{seed}.urdf");
+    let scenario = format!("arm{seed}.toml");
+    aift_ok(
+        &["gen-arm", "--seed", &seed.to_string(), "--out", &urdf],
+        dir,
+    );
+    let init = aift_in(&["init", "--urdf", &urdf, "--out", &scenario], dir);
+    if init.status.code() != Some(0) {
+        return None;
+    }
+    let n = aift::arm::load_urdf(&dir.join(&urdf)).unwrap().joints.len();
+    Some((scenario, n))
+}
+
 /// A one-cell campaign on the paper arm (no-ft and the oracle, an encoder freeze while moving,
 /// 9 s on the articulated engine), named `name`, with `extra` TOML appended.
 pub fn tiny_campaign(name: &str, extra: &str) -> String {
