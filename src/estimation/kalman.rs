@@ -247,11 +247,6 @@ impl Ekf {
         self
     }
 
-    /// Whether the state carries the model error ([`Self::with_model_error_state`]).
-    pub fn has_model_error_state(&self) -> bool {
-        self.model_error_state
-    }
-
     /// The joint state [q, qd] (without the model-error state).
     pub fn joint_state(&self) -> &[f64] {
         &self.x.as_slice()[..2 * self.n()]
