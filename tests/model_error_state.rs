@@ -1,7 +1,7 @@
 //! The hybrid's model error as a state (`hybrid.model_error_state`, docs/method.md, "Model error
 //! as a state"): the bank's filters carry each joint's model-error acceleration as a random walk
 //! stepped by the change of the parameter-error torques. On generated arms no screen or campaign
-//! uses (`aift gen-arm --seed 76001..=76006`, `aift init`; model error drawn; the campaign's
+//! uses (`aift gen-arm --seed 78001..=78006`, `aift init`; model error drawn; the campaign's
 //! articulated engine), healthy runs raise no more false alarms with the state than without,
 //! and wherever the oracle (told the faulty channel) recovers from the last joint's tachometer
 //! frozen while the arm moves, the hybrid with the state recovers too. The unit tests beside
@@ -55,7 +55,7 @@ fn the_model_error_state_keeps_healthy_runs_quiet_and_frozen_tachometers_recover
     let d = tmp.path();
     let (mut with, mut without, mut arms, mut judged) = (0, 0, 0, 0);
     let mut failures = Vec::new();
-    for seed in 76001..=76006 {
+    for seed in 78001..=78006 {
         let Some((scenario, n)) = common::generated_arm(seed, d) else {
             continue;
         };

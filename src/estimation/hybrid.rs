@@ -792,10 +792,14 @@ impl Hybrid {
             // every hypothesis starts from one reading, and a failure hypothesis that leads for
             // a tick would otherwise make the model predict from its own estimate and stay
             // ahead (start-up false alarms).
-            let x = if self.ticks < self.config.resync_ticks {
+            // The same start-up rule picks whose velocity spread the model's friction band
+            // sees: the healthy hypothesis' while the belief leads, then the winner's.
+            let starting = self.ticks < self.config.resync_ticks;
+            let lead = if starting { 0 } else { self.winner };
+            let x = if starting {
                 self.uaic.belief()
             } else {
-                self.bank.filters[self.winner].joint_state()
+                self.bank.filters[lead].joint_state()
             };
             if self.config.actuators {
                 let n = self.layout.n_joints();
@@ -812,11 +816,7 @@ impl Hybrid {
             }
             if self.config.model_error_state {
                 let n = self.layout.n_joints();
-                let f = if self.ticks < self.config.resync_ticks {
-                    &self.bank.filters[0]
-                } else {
-                    &self.bank.filters[self.winner]
-                };
+                let f = &self.bank.filters[lead];
                 for i in 0..n {
                     self.velocity_spread[i] = f.p[(n + i, n + i)].max(0.0).sqrt();
                 }

@@ -397,9 +397,10 @@ impl Ekf {
             q[(n + i, i)] += s2 * dt.powi(3) / 2.0;
             q[(n + i, n + i)] += s2 * dt * dt;
             // How the motion within the tick is integrated: dt^2 / 2 a for a constant
-            // acceleration, up to dt^2 a for a semi-implicit Euler step (the plants').
+            // acceleration; the plants' two semi-implicit Euler substeps move dt^2 / 4 a
+            // further (docs/method.md, "Model error as a state").
             let a = acc.map_or(0.0, |a| a[i]) + self.x[2 * n + i];
-            q[(i, i)] += (h * a).powi(2);
+            q[(i, i)] += (0.5 * h * a).powi(2);
         }
         self.x.copy_from(&self.x_pred);
         self.p.copy_from(&self.p_pred);
@@ -972,7 +973,7 @@ mod tests {
 
     /// With the model-error state, the prediction is x' = F x + [dt^2/2 a, dt a, 0] and P' = F
     /// (P + diag(0, 0, step^2)) F' + Q, against dense matrices built here: F = [[I, dt I, dt^2/2
-    /// I], [0, I, dt I], [0, 0, I]], Q the white noise on [q, qd] and (dt^2/2 (a + e))^2 on q.
+    /// I], [0, I, dt I], [0, 0, I]], Q the white noise on [q, qd] and (dt^2/4 (a + e))^2 on q.
     #[test]
     fn the_model_error_state_predicts_as_the_dense_equations() {
         let n = 2;
@@ -1008,7 +1009,7 @@ mod tests {
             stepped[(2 * n + i, 2 * n + i)] += step[i] * step[i];
             let w2 = white[i] * white[i];
             let total = acc[i] + x0[2 * n + i];
-            q[(i, i)] = w2 * dt.powi(4) / 4.0 + (h * total).powi(2);
+            q[(i, i)] = w2 * dt.powi(4) / 4.0 + (0.5 * h * total).powi(2);
             q[(i, n + i)] = w2 * dt.powi(3) / 2.0;
             q[(n + i, i)] = w2 * dt.powi(3) / 2.0;
             q[(n + i, n + i)] = w2 * dt * dt;
