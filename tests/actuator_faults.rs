@@ -322,6 +322,7 @@ fn actuator_faults_are_reported_with_the_alarms_they_drew() {
 fn the_hybrid_detects_and_isolates_actuator_faults_with_its_own_hypotheses() {
     let on = [
         "hybrid.actuators=true",
+        "hybrid.model_error_state=false",
         "duration=10.0",
         "plant.engine=\"articulated\"",
     ];
@@ -363,7 +364,7 @@ fn the_hybrid_detects_and_isolates_actuator_faults_with_its_own_hypotheses() {
             "name = \"hybrid-actuators\"\nseeds = 1\nfirst_seed = 33\nmethods = [\"hybrid\"]\n\
              channels = []\nactuator_kinds = [{{ kind = \"effectiveness\", factor = 0.3 }}]\n\
              [defaults]\nduration = 10.0\nplant = {{ engine = \"articulated\" }}\n\
-             hybrid = {{ actuators = true }}\n\
+             hybrid = {{ actuators = true, model_error_state = false }}\n\
              [[arms]]\nname = \"panda\"\nscenario = \"{}\"\njoints = [2]\n",
             common::repo("assets/scenarios/panda_healthy.toml").display()
         ),

@@ -139,8 +139,8 @@ fn the_closed_loop_allocates_nothing_per_tick() {
 /// either. The detector (`pl-detect`, `deterministic`) tests the channels not isolated in its
 /// kept storage (it allocated a matrix every tick while a channel was isolated, 1-5 per tick);
 /// each alarm it raises allocates the list of the channels it isolated, once. The hybrid with
-/// its opt-in bank options (`actuators`, `restart_ruled_out`, `model_error_state`) allocates
-/// nothing either.
+/// its opt-in bank options (`actuators`, `restart_ruled_out`; the model-error state, its
+/// default, is off there since the actuator hypotheses need it off) allocates nothing either.
 #[test]
 fn the_closed_loop_allocates_nothing_while_faults_come_and_go() {
     let faults = [
@@ -188,8 +188,8 @@ fn the_closed_loop_allocates_nothing_while_faults_come_and_go() {
                 }
             }
         }
-        // The hybrid's opt-in bank options: actuator hypotheses, ruled-out hypotheses
-        // restarted every tick and the model error as a state.
+        // The hybrid's opt-in bank options: actuator hypotheses (with the white model error
+        // they need) and ruled-out hypotheses restarted every tick.
         let options = common::with_faults(
             file,
             &faults,
@@ -198,7 +198,7 @@ fn the_closed_loop_allocates_nothing_while_faults_come_and_go() {
                 "plant.engine=\"articulated\"",
                 "hybrid.actuators=true",
                 "hybrid.restart_ruled_out=true",
-                "hybrid.model_error_state=true",
+                "hybrid.model_error_state=false",
             ],
         );
         let (a, _, _) = counted_ticks(&options, Method::Hybrid);

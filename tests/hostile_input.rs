@@ -264,6 +264,14 @@ fn errors_name_the_key_and_the_set_that_gave_it() {
             "o",
         );
     }
+    // The hybrid's actuator hypotheses need the white model error: with the model-error state
+    // (the default) a locked joint would be explained as model error.
+    refused(
+        &["run", "--set", "hybrid.actuators=true", "--out", "o"],
+        &["hybrid.actuators", "hybrid.model_error_state = false"],
+        d,
+        "o",
+    );
     // The Kalman baselines' process model: a typed choice, and the model's settings bounded.
     refused(
         &["run", "--set", "kalman.process_model=\"rk4\"", "--out", "o"],

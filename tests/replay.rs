@@ -92,6 +92,8 @@ fn a_replayed_run_gives_its_actuator_alarms() {
         "--set",
         "hybrid.actuators=true",
         "--set",
+        "hybrid.model_error_state=false",
+        "--set",
         "plant.engine=\"articulated\"",
     ];
     let mut live_args = vec![

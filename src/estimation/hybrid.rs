@@ -174,7 +174,8 @@ pub struct HybridConfig {
     /// process noise `actuator_broad` times the model's), and one hypothesis holds an external
     /// torque on every joint at once (a push, a payload, a contact), so that an unexpected
     /// acceleration is explained as a torque, not as sensors failing. Off by default: measured
-    /// in docs/method.md, it helps actuator faults and hurts tachometer spikes. (This and
+    /// in docs/method.md, it helps actuator faults and hurts tachometer spikes. Needs
+    /// `model_error_state = false` (the state would explain a lasting torque error). (This and
     /// `actuator_broad` are written only when not the default, so that fingerprints of
     /// scenarios that do not set them stay as they were.)
     #[serde(skip_serializing_if = "is_false")]
@@ -196,9 +197,10 @@ pub struct HybridConfig {
     /// error over the ticks of a motion is one error, not fresh noise every tick; as a state it
     /// is learned from the first ticks and a trusted channel is then predicted sharply. Needs
     /// the dynamics bank model and model error (`[model]`); otherwise the state stays 0 (the
-    /// position's integration noise still applies). Off by default: measured in docs/method.md,
-    /// not yet run on the full campaigns. (Written only when set.)
-    #[serde(skip_serializing_if = "is_false")]
+    /// position's integration noise still applies). On by default since 2026-12-05 (measured in
+    /// docs/method.md: fewer false alarms on healthy runs of arms nobody tuned for, more
+    /// recoveries); `false` is the white model error of the earlier default. (Always written,
+    /// so that a scenario's fingerprint says which.)
     pub model_error_state: bool,
 }
 
@@ -219,7 +221,7 @@ impl Default for HybridConfig {
             actuators: false,
             actuator_broad: 100.0,
             restart_ruled_out: false,
-            model_error_state: false,
+            model_error_state: true,
         }
     }
 }
@@ -266,6 +268,14 @@ impl HybridConfig {
             return Err(crate::SettingError::new(
                 "stuck_width",
                 "must be in (0, 100]",
+            ));
+        }
+        if self.actuators && self.model_error_state {
+            return Err(crate::SettingError::new(
+                "actuators",
+                "needs `hybrid.model_error_state = false`: the model-error state explains a \
+                 lasting torque error (a locked joint) as model error, so the actuator \
+                 hypotheses never win (docs/method.md, \"Model error as a state\")",
             ));
         }
         Ok(())
