@@ -353,6 +353,8 @@ pub struct Hybrid {
     anchor_p: DMatrix<f64>,
     /// Scratch: the velocity spread of the state the model is evaluated at.
     velocity_spread: Vec<f64>,
+    /// The lead filter's model-error estimate, handed to the model with the velocity spread.
+    model_error: Vec<f64>,
 }
 
 impl Hybrid {
@@ -422,6 +424,7 @@ impl Hybrid {
             factor: DMatrix::zeros(dim, dim),
             anchor_p: DMatrix::zeros(dim, dim),
             velocity_spread: vec![0.0; n],
+            model_error: vec![0.0; n],
         }
     }
 
@@ -831,6 +834,11 @@ impl Hybrid {
                     self.velocity_spread[i] = f.p[(n + i, n + i)].max(0.0).sqrt();
                 }
                 self.model.set_velocity_spread(&self.velocity_spread);
+                // The lead's model-error estimate (none without the state: 0).
+                for i in 0..n {
+                    self.model_error[i] = f.x.get(2 * n + i).copied().unwrap_or(0.0);
+                }
+                self.model.set_model_error(&self.model_error);
             }
             let transition = self.model.evaluate(x, input.applied_torques);
             let (scale, n) = (&self.joint_scale, self.layout.n_joints());

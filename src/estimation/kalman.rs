@@ -344,6 +344,21 @@ impl Ekf {
         let dt = self.dt;
         let h = 0.5 * dt * dt;
         let acc = transition.acceleration;
+        // The model error is carried first (it drives this tick's motion): e <- k e, and e's
+        // rows and columns of P times k.
+        if let Some(c) = transition.correlated {
+            for (i, &k) in c.carry.iter().enumerate() {
+                if k != 1.0 {
+                    self.x[2 * n + i] *= k;
+                    for r in 0..d {
+                        self.p[(2 * n + i, r)] *= k;
+                    }
+                    for r in 0..d {
+                        self.p[(r, 2 * n + i)] *= k;
+                    }
+                }
+            }
+        }
         for i in 0..n {
             let a = acc.map_or(0.0, |a| a[i]) + self.x[2 * n + i];
             self.x_pred[i] = self.x[i] + dt * self.x[n + i] + h * a;
@@ -398,9 +413,11 @@ impl Ekf {
             q[(n + i, n + i)] += s2 * dt * dt;
             // How the motion within the tick is integrated: dt^2 / 2 a for a constant
             // acceleration; the plants' two semi-implicit Euler substeps move dt^2 / 4 a
-            // further (docs/method.md, "Model error as a state").
+            // further (docs/method.md, "Model error as a state"). The acceleration a + e is
+            // uncertain by e's variance: the gap's variance is (dt^2 / 4)^2 E[(a + e)^2].
             let a = acc.map_or(0.0, |a| a[i]) + self.x[2 * n + i];
-            q[(i, i)] += (0.5 * h * a).powi(2);
+            let a2 = a * a + q[(2 * n + i, 2 * n + i)];
+            q[(i, i)] += 0.25 * h * h * a2;
         }
         self.x.copy_from(&self.x_pred);
         self.p.copy_from(&self.p_pred);
@@ -971,9 +988,10 @@ mod tests {
         }
     }
 
-    /// With the model-error state, the prediction is x' = F x + [dt^2/2 a, dt a, 0] and P' = F
-    /// (P + diag(0, 0, step^2)) F' + Q, against dense matrices built here: F = [[I, dt I, dt^2/2
-    /// I], [0, I, dt I], [0, 0, I]], Q the white noise on [q, qd] and (dt^2/4 (a + e))^2 on q.
+    /// With the model-error state, the prediction is x' = F K x + [dt^2/2 a, dt a, 0] and P' = F
+    /// (K P K' + diag(0, 0, step^2)) F' + Q, against dense matrices built here: K = diag(I, I,
+    /// carry), F = [[I, dt I, dt^2/2 I], [0, I, dt I], [0, 0, I]], Q the white noise on [q, qd]
+    /// and (dt^2/4)^2 E[(a + e)^2] on q (e's mean and variance after the carry and step).
     #[test]
     fn the_model_error_state_predicts_as_the_dense_equations() {
         let n = 2;
@@ -990,18 +1008,25 @@ mod tests {
         ekf.p.copy_from(&p0);
         ekf.x.copy_from(&x0);
         let (acc, noise, white, step) = ([30.0, -4.0], [9.0, 7.0], [2.0, 3.0], [5.0, 0.5]);
+        let carry = [0.7, -0.3];
         let t = Transition {
             acceleration: Some(&acc),
             noise: &noise,
             correlated: Some(crate::estimation::models::CorrelatedError {
                 white: &white,
                 step: &step,
+                carry: &carry,
             }),
         };
         ekf.predict(&t, 1.0);
         let mut f = DMatrix::identity(3 * n, 3 * n);
+        let mut k = DMatrix::identity(3 * n, 3 * n);
         let mut q = DMatrix::zeros(3 * n, 3 * n);
-        let mut stepped = p0.clone();
+        for i in 0..n {
+            k[(2 * n + i, 2 * n + i)] = carry[i];
+        }
+        let x0 = &k * x0;
+        let mut stepped = &k * p0 * k.transpose();
         for i in 0..n {
             f[(i, n + i)] = dt;
             f[(i, 2 * n + i)] = h;
@@ -1009,7 +1034,8 @@ mod tests {
             stepped[(2 * n + i, 2 * n + i)] += step[i] * step[i];
             let w2 = white[i] * white[i];
             let total = acc[i] + x0[2 * n + i];
-            q[(i, i)] = w2 * dt.powi(4) / 4.0 + (0.5 * h * total).powi(2);
+            let second_moment = total * total + stepped[(2 * n + i, 2 * n + i)];
+            q[(i, i)] = w2 * dt.powi(4) / 4.0 + (0.5 * h).powi(2) * second_moment;
             q[(i, n + i)] = w2 * dt.powi(3) / 2.0;
             q[(n + i, i)] = w2 * dt.powi(3) / 2.0;
             q[(n + i, n + i)] = w2 * dt * dt;
@@ -1068,6 +1094,7 @@ mod tests {
                     correlated: Some(crate::estimation::models::CorrelatedError {
                         white: &[2.0; 2],
                         step: &step,
+                        carry: &[1.0; 2],
                     }),
                 };
                 ekf.predict(&t, 1.0);

@@ -39,6 +39,9 @@ pub struct Transition<'a> {
 pub struct CorrelatedError<'a> {
     pub white: &'a [f64],
     pub step: &'a [f64],
+    /// Per joint, the factor the model error is carried by over the tick, E[e' | e] = carry e
+    /// (docs/method.md, "Model error as a state").
+    pub carry: &'a [f64],
 }
 
 /// How the joint state moves over one tick.
@@ -50,6 +53,10 @@ pub trait TransitionModel: Send {
     /// The standard deviation of each joint's velocity at the state the next [`Self::evaluate`]
     /// is given (a joint that may be at rest may be stuck); ignored by default.
     fn set_velocity_spread(&mut self, _spread: &[f64]) {}
+
+    /// The model-error acceleration (rad/s^2) a filter that carries it as a state estimates at
+    /// that state (it scales the error's step, [`CorrelatedError`]); ignored by default.
+    fn set_model_error(&mut self, _error: &[f64]) {}
 }
 
 /// Constant velocity with white acceleration noise: the discrete white-noise acceleration model,
@@ -108,16 +115,30 @@ pub struct ArmTransition {
     step: Vec<f64>,
     /// Per joint, the signed parameter-error torques of the last evaluation (inertial, mass
     /// bias, centre of mass, damping, friction), and the variance of their change.
-    terms: Vec<[f64; 5]>,
+    terms: Vec<[f64; 3]>,
     terms_set: bool,
     torque_step: Vec<f64>,
     step_var: Vec<f64>,
+    /// Per joint, the factor the model error is carried by ([`CorrelatedError::carry`]); the
+    /// last evaluation's acceleration, inertial and other variances of the budget (rad/s^2)^2;
+    /// the inertial torque variance (scratch); and the lead filter's model-error estimate.
+    error_scale: Vec<f64>,
+    last_acceleration: Vec<f64>,
+    inertial_var: Vec<f64>,
+    last_inertial_var: Vec<f64>,
+    last_rest_var: Vec<f64>,
+    inertial_torque: Vec<f64>,
+    model_error: Vec<f64>,
     /// Per joint, the stiction band's torque variance (F^2 / 3 within the friction ramp), and
     /// its acceleration variance (white).
     stiction: Vec<f64>,
     stiction_var: Vec<f64>,
     /// Per joint, the velocity's standard deviation at the evaluated state.
     velocity_spread: Vec<f64>,
+    /// Per joint, whether its velocity lies within the stiction band; the Cholesky factor of
+    /// M + h D (viscous damping only) a slipping joint responds through.
+    stuck: Vec<bool>,
+    slip_factor: nalgebra::DMatrix<f64>,
 }
 
 impl ArmTransition {
@@ -146,10 +167,19 @@ impl ArmTransition {
             implicit_step: 0.0,
             white: vec![0.0; n],
             step: vec![0.0; n],
-            terms: vec![[0.0; 5]; n],
+            terms: vec![[0.0; 3]; n],
             terms_set: false,
             torque_step: vec![0.0; n],
             step_var: vec![0.0; n],
+            error_scale: vec![1.0; n],
+            last_acceleration: vec![0.0; n],
+            inertial_var: vec![0.0; n],
+            last_inertial_var: vec![0.0; n],
+            last_rest_var: vec![0.0; n],
+            inertial_torque: vec![0.0; n],
+            model_error: vec![0.0; n],
+            stuck: vec![false; n],
+            slip_factor: nalgebra::DMatrix::zeros(n, n),
             stiction: vec![0.0; n],
             stiction_var: vec![0.0; n],
             velocity_spread: vec![0.0; n],
@@ -180,15 +210,24 @@ impl ArmTransition {
     }
 
     /// The per-joint acceleration error of the model's parameter errors at the state last
-    /// evaluated, into `noise` as a lower bound; and the standard deviation of its change since
-    /// the last evaluation into `step` (the first evaluation: all of it). A parameter error is
-    /// fixed, so the torque error it makes moves only as its regressor does: the change of
-    /// u_k r_k (the inertial torque, the bias, the damping and the signed friction ramp) over
-    /// the tick is u_k (r_k - r_k,last); the centre-of-mass term is a bound and does not step
-    /// (docs/method.md, "Model error as a state").
+    /// evaluated, into `noise` as a lower bound; and how the model error a filter carries as a
+    /// state moves since the last evaluation (the first evaluation: all of it, from 0), into
+    /// `carry` and `step` (docs/method.md, "Model error as a state"). Per joint i, the error is
+    /// an inertial part W_i . qdd (W_i an unknown row, isotropic, qdd the model's acceleration
+    /// vector) with prior variance A (the budget's inertial term through M^-1), and the rest b
+    /// (mass bias, centre of mass, damping, friction: variance B), whose parameter errors are
+    /// fixed, so it moves only as its regressors do (u_k (r_k - r_k,last), the friction ramp
+    /// by all of its change, the centre-of-mass bound not at all: variance D). With A' the
+    /// inertial variance at the new state and C = cos(qdd_last, qdd) sqrt(A A'), the error's
+    /// conditional given its last value e is
+    ///   E[e' | e] = (C + B) / (A + B) e,
+    ///   Var[e' | e] = kappa (A' + B + D - (C + B)^2 / (A + B)),
+    /// kappa = max(1, e^2 / (A + B)) with e the lead filter's estimate: a learned error larger
+    /// than the budget scales the budget up.
     fn parameter_noise(&mut self, qd: &[f64], torques: &[f64]) {
         let u = self.uncertainty;
         let model = self.dynamics.model().clone();
+        let mut inertial_torque = std::mem::take(&mut self.inertial_torque);
         for (j, joint) in model.joints.iter().enumerate() {
             // The inertial torque M qdd the model predicts is off by its mass error too.
             let inertial = torques[j] - self.dynamics.bias()[j] - joint.damping * qd[j];
@@ -200,6 +239,7 @@ impl ArmTransition {
                 u.friction * joint.friction,
             ];
             self.torque_error[j] = terms.iter().map(|t| t * t).sum::<f64>();
+            inertial_torque[j] = terms[0] * terms[0];
             // The friction the model applied over the tick (the ramp at the tick's end velocity,
             // saturated, as the implicit step takes it): where the model's friction moves (a
             // joint it sees reverse, stick or slip) the truth need not, so the error moves by
@@ -207,9 +247,7 @@ impl ArmTransition {
             let end = qd[j] + self.implicit_step * self.acceleration[j];
             let ramp = crate::arm::dynamics::FRICTION_RAMP;
             let signed = [
-                terms[0],
                 terms[1],
-                terms[2],
                 terms[3],
                 joint.friction * (end / ramp).clamp(-1.0, 1.0),
             ];
@@ -220,51 +258,108 @@ impl ArmTransition {
                     .map(|(a, b)| (a - b) * (a - b))
                     .sum::<f64>()
             } else {
-                self.torque_error[j]
+                0.0
             };
             self.terms[j] = signed;
             // Within the friction ramp the joint sticks or slips: its friction is anywhere in
             // [-F, F] (variance F^2 / 3), whatever the model's ramp says, and changes as it does.
             let band = crate::arm::dynamics::FRICTION_RAMP + 3.0 * self.velocity_spread[j];
-            self.stiction[j] = if qd[j].abs() < band {
+            self.stuck[j] = qd[j].abs() < band;
+            self.stiction[j] = if self.stuck[j] {
                 joint.friction * joint.friction / 3.0
             } else {
                 terms[4] * terms[4]
             };
         }
-        self.terms_set = true;
         let n = self.noise.len();
         let mut var = std::mem::take(&mut self.acceleration_var);
-        let mut step_var = std::mem::take(&mut self.step_var);
+        let mut inertial_var = std::mem::take(&mut self.inertial_var);
+        let mut rest_step = std::mem::take(&mut self.step_var);
         let mut stiction_var = std::mem::take(&mut self.stiction_var);
-        var.iter_mut().for_each(|v| *v = 0.0);
-        step_var.iter_mut().for_each(|v| *v = 0.0);
-        stiction_var.iter_mut().for_each(|v| *v = 0.0);
+        for v in [
+            &mut var,
+            &mut inertial_var,
+            &mut rest_step,
+            &mut stiction_var,
+        ] {
+            v.iter_mut().for_each(|v| *v = 0.0);
+        }
+        // A stuck joint's friction torque is not a damper that swallows a torque error: where
+        // the implicit step took the friction ramp's slope into its matrix, the stiction band
+        // goes through (M + h D)^-1 instead, the joint's response once it slips.
+        let ramped = self.implicit_step > 0.0
+            && (0..n).any(|j| self.stuck[j] && model.joints[j].friction > 0.0);
+        let slip_factored = ramped && self.factor_slip(&model);
         for j in 0..n {
-            if self.torque_error[j] == 0.0 && self.torque_step[j] == 0.0 {
-                continue;
-            }
             self.column.fill(0.0);
             self.column[j] = 1.0;
             self.dynamics.solve_factored(&mut self.column);
             for (k, m) in self.column.iter().enumerate() {
-                var[k] += m * m * self.torque_error[j];
-                step_var[k] += m * m * self.torque_step[j];
-                stiction_var[k] += m * m * self.stiction[j];
+                let m2 = m * m;
+                var[k] += m2 * self.torque_error[j];
+                inertial_var[k] += m2 * inertial_torque[j];
+                rest_step[k] += m2 * self.torque_step[j];
+                if !(slip_factored && self.stuck[j]) {
+                    stiction_var[k] += m2 * self.stiction[j];
+                }
+            }
+            if slip_factored && self.stuck[j] {
+                self.column.fill(0.0);
+                self.column[j] = 1.0;
+                solve_lower(&self.slip_factor, &mut self.column);
+                for (k, m) in self.column.iter().enumerate() {
+                    stiction_var[k] += m * m * self.stiction[j];
+                }
             }
         }
+        self.inertial_torque = inertial_torque;
+        // The inertial part's correlation between the last state and this one: the cosine of
+        // the model's acceleration vectors (W isotropic).
+        let (mut aa, mut ab, mut bb) = (0.0, 0.0, 0.0);
+        for (a, b) in self.last_acceleration.iter().zip(&self.acceleration) {
+            aa += a * a;
+            ab += a * b;
+            bb += b * b;
+        }
+        let cos = if aa > 0.0 && bb > 0.0 {
+            (ab / (aa * bb).sqrt()).clamp(-1.0, 1.0)
+        } else {
+            0.0
+        };
+        for i in 0..n {
+            let (a_new, total) = (inertial_var[i], var[i]);
+            let b_new = total - a_new;
+            let (carry, step) = if self.terms_set {
+                carried_error(
+                    CarriedError {
+                        inertial: self.last_inertial_var[i],
+                        rest: self.last_rest_var[i],
+                        inertial_now: a_new,
+                        cos,
+                        rest_step: rest_step[i],
+                    },
+                    self.model_error[i],
+                )
+            } else {
+                (1.0, total)
+            };
+            self.error_scale[i] = carry;
+            self.step[i] = step.sqrt();
+            self.last_inertial_var[i] = a_new;
+            self.last_rest_var[i] = b_new.max(0.0);
+        }
+        self.last_acceleration.copy_from_slice(&self.acceleration);
+        self.terms_set = true;
         for (w, v) in self.white.iter_mut().zip(&stiction_var) {
             *w = (*w * *w + v).sqrt();
         }
-        self.stiction_var = stiction_var;
         for (s, v) in self.noise.iter_mut().zip(&var) {
             *s = s.max(v.sqrt());
         }
-        for (s, v) in self.step.iter_mut().zip(&step_var) {
-            *s = v.sqrt();
-        }
         self.acceleration_var = var;
-        self.step_var = step_var;
+        self.inertial_var = inertial_var;
+        self.step_var = rest_step;
+        self.stiction_var = stiction_var;
     }
 
     /// The arm model it predicts with.
@@ -273,7 +368,85 @@ impl ArmTransition {
     }
 }
 
+/// Solves L L' x = b in place, L the lower triangle of `l`.
+fn solve_lower(l: &nalgebra::DMatrix<f64>, b: &mut [f64]) {
+    let n = b.len();
+    for i in 0..n {
+        let mut v = b[i];
+        for k in 0..i {
+            v -= l[(i, k)] * b[k];
+        }
+        b[i] = v / l[(i, i)];
+    }
+    for i in (0..n).rev() {
+        let mut v = b[i];
+        for k in i + 1..n {
+            v -= l[(k, i)] * b[k];
+        }
+        b[i] = v / l[(i, i)];
+    }
+}
+
+/// One joint's model-error budget at the last evaluation and now (variances in (rad/s^2)^2).
+#[derive(Clone, Copy, Debug)]
+struct CarriedError {
+    /// A: the inertial part's variance at the last evaluation.
+    inertial: f64,
+    /// B: the rest's (mass bias, centre of mass, damping, friction).
+    rest: f64,
+    /// A': the inertial part's variance now.
+    inertial_now: f64,
+    /// The cosine between the model's acceleration vectors then and now.
+    cos: f64,
+    /// D: the variance of the rest's change (its regressors' moves).
+    rest_step: f64,
+}
+
+/// The model error's carry k and step variance over one tick, given its last value `e`: e =
+/// W . qdd + b (W isotropic with Var(W . qdd) = A, Var b = B), e' = W . qdd' + b + d (Var d =
+/// D), Cov(W . qdd, W . qdd') = C = cos sqrt(A A'); the Gaussian conditional E[e' | e] = k e,
+/// k = (C + B) / (A + B), Var[e' | e] = A' + B + D - (C + B)^2 / (A + B), scaled by kappa =
+/// max(1, e^2 / (A + B)) (docs/method.md, "Model error as a state").
+fn carried_error(b: CarriedError, e: f64) -> (f64, f64) {
+    let prior = b.inertial + b.rest;
+    if prior.is_nan() || prior <= 0.0 {
+        return (1.0, b.inertial_now + b.rest_step);
+    }
+    let c = b.cos * (b.inertial * b.inertial_now).sqrt();
+    let kappa = (e * e / prior).max(1.0);
+    let told = (c + b.rest) * (c + b.rest) / prior;
+    let var = b.inertial_now + b.rest + b.rest_step - told;
+    ((c + b.rest) / prior, kappa * var.max(0.0))
+}
+
 impl ArmTransition {
+    /// Factors M + h D (the mass matrix of the last evaluation, the joints' viscous damping)
+    /// into `slip_factor` in place, without allocating; false if it is not positive definite.
+    fn factor_slip(&mut self, model: &ArmModel) -> bool {
+        let m = self.dynamics.mass_matrix();
+        let l = &mut self.slip_factor;
+        let n = m.nrows();
+        for j in 0..n {
+            let mut d = m[(j, j)] + self.implicit_step * model.joints[j].damping;
+            for k in 0..j {
+                d -= l[(j, k)] * l[(j, k)];
+            }
+            if d.is_nan() || d <= 0.0 {
+                return false;
+            }
+            let d = d.sqrt();
+            l[(j, j)] = d;
+            for i in j + 1..n {
+                let mut v = m[(i, j)];
+                for k in 0..j {
+                    v -= l[(i, k)] * l[(j, k)];
+                }
+                l[(i, j)] = v / d;
+            }
+        }
+        true
+    }
+
     /// Predicts with the step `step` (with [`crate::arm::PredictionStep::Implicit`], the tick
     /// `dt`; explicit otherwise).
     pub fn with_step(mut self, step: crate::arm::PredictionStep, dt: f64) -> Self {
@@ -288,6 +461,10 @@ impl ArmTransition {
 impl TransitionModel for ArmTransition {
     fn set_velocity_spread(&mut self, spread: &[f64]) {
         self.velocity_spread.copy_from_slice(spread);
+    }
+
+    fn set_model_error(&mut self, error: &[f64]) {
+        self.model_error.copy_from_slice(error);
     }
 
     fn evaluate(&mut self, x: &[f64], torques: &[f64]) -> Transition<'_> {
@@ -326,6 +503,7 @@ impl TransitionModel for ArmTransition {
             correlated: Some(CorrelatedError {
                 white: &self.white,
                 step: &self.step,
+                carry: &self.error_scale,
             }),
         }
     }
@@ -499,6 +677,104 @@ mod tests {
     /// white part is the floor and, for a joint whose velocity may be 0 (within the friction
     /// ramp plus 3 of its spreads), its stiction band F^2 / 3 through M^-1 (outside, the
     /// parameter error of F).
+    /// With the implicit step, a joint within the friction ramp is a stiff damper in the
+    /// step's matrix (M + h (D + F / ramp)); the stiction band goes through (M + h D)^-1, the
+    /// joint's response once it slips, against the inverse computed here.
+    #[test]
+    fn a_stuck_joint_slips_through_the_undamped_matrix() {
+        let (model, _, g, t) = uncertain_spatial_arm(0.5);
+        let h = 1e-3;
+        let mut t = t.with_step(crate::arm::PredictionStep::Implicit, h);
+        // Joint 2 at rest (within the ramp), the others moving.
+        let x = [0.3, -0.7, 0.4, 0.5, -1.0, 0.0];
+        let tau = [4.0, -3.0, 1.0];
+        let white = t.evaluate(&x, &tau).correlated.unwrap().white.to_vec();
+        let mut d = Dynamics::new(model.clone(), g);
+        d.set_configuration(&x[..3]);
+        d.compute(&x[3..]);
+        let mut shifted = d.mass_matrix().clone();
+        for (j, joint) in model.joints.iter().enumerate() {
+            shifted[(j, j)] += h * joint.damping;
+        }
+        let shifted_copy = shifted.clone();
+        let inv = shifted.try_inverse().unwrap();
+        // The moving joints' friction is 0 in this arm: only joint 2's band.
+        assert_eq!(
+            (model.joints[0].friction, model.joints[1].friction),
+            (0.0, 0.0)
+        );
+        for (i, w) in white.iter().enumerate() {
+            let want = (inv[(i, 2)] * 0.5 / 3f64.sqrt()).abs();
+            assert!(
+                (w - want).abs() < 1e-9 * want,
+                "joint {i}: {w} against {want}"
+            );
+        }
+        // Through the step's own matrix (the ramp's slope F / ramp = 50 N m s/rad added) it
+        // would be smaller (by h F / ramp against the elbow's inertia here; on a light joint,
+        // by orders of magnitude).
+        let mut ramped = shifted_copy;
+        ramped[(2, 2)] += h * 0.5 / crate::arm::dynamics::FRICTION_RAMP;
+        let ramped = ramped.try_inverse().unwrap();
+        assert!(white[2] > 1.2 * (ramped[(2, 2)] * 0.5 / 3f64.sqrt()).abs());
+    }
+
+    /// The carry and step are the Gaussian conditional of e' given e: a Monte Carlo of the
+    /// model they assume (W isotropic in 3 joints, b, its step d) regressed e' on e.
+    #[test]
+    fn the_carried_model_error_is_the_conditional_of_its_model() {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, Normal};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let z = Normal::new(0.0, 1.0).unwrap();
+        let (qdd, qdd_now) = ([300.0, -120.0, 50.0], [-200.0, 90.0, 400.0]);
+        let (s, b_sd, d_sd) = (0.4, 30.0, 12.0);
+        let norm = |v: &[f64; 3]| v.iter().map(|x| x * x).sum::<f64>();
+        let dot: f64 = qdd.iter().zip(&qdd_now).map(|(a, b)| a * b).sum();
+        let budget = CarriedError {
+            inertial: s * s * norm(&qdd),
+            rest: b_sd * b_sd,
+            inertial_now: s * s * norm(&qdd_now),
+            cos: dot / (norm(&qdd) * norm(&qdd_now)).sqrt(),
+            rest_step: d_sd * d_sd,
+        };
+        let (k, var) = carried_error(budget, 0.0);
+        let samples = 400_000;
+        let (mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0);
+        for _ in 0..samples {
+            let w: Vec<f64> = (0..3).map(|_| s * z.sample(&mut rng)).collect();
+            let b = b_sd * z.sample(&mut rng);
+            let e: f64 = w.iter().zip(&qdd).map(|(w, a)| w * a).sum::<f64>() + b;
+            let e_now: f64 = w.iter().zip(&qdd_now).map(|(w, a)| w * a).sum::<f64>()
+                + b
+                + d_sd * z.sample(&mut rng);
+            sxx += e * e;
+            sxy += e * e_now;
+            syy += e_now * e_now;
+        }
+        let slope = sxy / sxx;
+        let residual = (syy - sxy * sxy / sxx) / samples as f64;
+        assert!((slope - k).abs() < 0.01, "carry {k} against {slope}");
+        assert!(
+            (residual / var - 1.0).abs() < 0.01,
+            "variance {var} against {residual}"
+        );
+        // Unchanged regressors: carried whole, no step.
+        let still = CarriedError {
+            inertial_now: budget.inertial,
+            cos: 1.0,
+            rest_step: 0.0,
+            ..budget
+        };
+        let (k, var) = carried_error(still, 0.0);
+        assert!((k - 1.0).abs() < 1e-12 && var.abs() < 1e-9 * budget.inertial);
+        // A learned error twice the budget's standard deviation: the step's variance times 4.
+        let e = 2.0 * (budget.inertial + budget.rest).sqrt();
+        let (_, scaled) = carried_error(budget, e);
+        let (_, plain) = carried_error(budget, 0.0);
+        assert!((scaled / plain - 4.0).abs() < 1e-9);
+    }
+
     #[test]
     fn the_model_error_steps_as_its_regressors_move() {
         let (model, u, g, mut t) = uncertain_spatial_arm(0.5);
@@ -519,17 +795,68 @@ mod tests {
                 "joint {i}: {w} against {want}"
             );
         }
+        // Joint 1's torque raised by d at the same state: only the inertial part moves. By
+        // hand: A and A' the inertial torques u (tau - bias - D qd) through M^-1, B the rest
+        // (mass bias, centre of mass, damping, friction), C from the accelerations' cosine.
+        let com_torque = t.com_torque.clone();
+        let budget = |tau: &[f64; 3]| -> (Vec<f64>, Vec<f64>) {
+            let (mut inertial, mut rest) = (vec![0.0; 3], vec![0.0; 3]);
+            for j in 0..3 {
+                let joint = &model.joints[j];
+                let bias = d.bias()[j];
+                let t0 = u.mass.max(u.inertia) * (tau[j] - bias - joint.damping * x[3 + j]);
+                let others = [
+                    u.mass * bias,
+                    com_torque[j],
+                    u.damping * joint.damping * x[3 + j],
+                    u.friction * joint.friction,
+                ];
+                for i in 0..3 {
+                    let m2 = minv[(i, j)] * minv[(i, j)];
+                    inertial[i] += m2 * t0 * t0;
+                    rest[i] += m2 * others.iter().map(|v| v * v).sum::<f64>();
+                }
+            }
+            (inertial, rest)
+        };
+        let before = t.evaluate(&x, &tau).acceleration.unwrap().to_vec();
         let d_tau = 2.5;
         let raised = [tau[0], tau[1] + d_tau, tau[2]];
-        let step = t.evaluate(&x, &raised).correlated.unwrap().step.to_vec();
-        for (i, s) in step.iter().enumerate() {
-            let want = (minv[(i, 1)] * u.inertia * d_tau).abs();
+        let moved = t.evaluate(&x, &raised);
+        let after = moved.acceleration.unwrap().to_vec();
+        let c = moved.correlated.unwrap();
+        let (carried, stepped) = (c.carry.to_vec(), c.step.to_vec());
+        let (a, b) = budget(&tau);
+        let (a_now, _) = budget(&raised);
+        let dot: f64 = before.iter().zip(&after).map(|(p, q)| p * q).sum();
+        let norms: f64 =
+            before.iter().map(|v| v * v).sum::<f64>() * after.iter().map(|v| v * v).sum::<f64>();
+        let cos = dot / norms.sqrt();
+        for i in 0..3 {
+            let cov = cos * (a[i] * a_now[i]).sqrt();
+            let carry = (cov + b[i]) / (a[i] + b[i]);
+            let step = (a_now[i] + b[i] - (cov + b[i]).powi(2) / (a[i] + b[i])).sqrt();
             assert!(
-                (s - want).abs() < 1e-9 * want,
-                "joint {i}: {s} against {want}"
+                (carried[i] - carry).abs() < 1e-9,
+                "joint {i}: carry {} against {carry}",
+                carried[i]
+            );
+            assert!(
+                (stepped[i] - step).abs() < 1e-6 * step,
+                "joint {i}: step {} against {step}",
+                stepped[i]
             );
         }
-        assert_eq!(t.evaluate(&x, &raised).correlated.unwrap().step, [0.0; 3]);
+        // Evaluated again at the same state and torques: carried whole, no step.
+        let again = t.evaluate(&x, &raised).correlated.unwrap();
+        assert!(again.carry.iter().all(|k| (k - 1.0).abs() < 1e-12));
+        assert!(
+            again
+                .step
+                .iter()
+                .zip(&stepped)
+                .all(|(s, was)| *s < 1e-6 * was)
+        );
         // A velocity spread that puts joint 2 within reach of rest: the stiction band.
         t.set_velocity_spread(&[0.0, 0.0, 0.5]);
         let white = t.evaluate(&x, &raised).correlated.unwrap().white.to_vec();
