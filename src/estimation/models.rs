@@ -113,8 +113,8 @@ pub struct ArmTransition {
     /// step over the tick ([`CorrelatedError`]).
     white: Vec<f64>,
     step: Vec<f64>,
-    /// Per joint, the signed parameter-error torques of the last evaluation (inertial, mass
-    /// bias, centre of mass, damping, friction), and the variance of their change.
+    /// Per joint, the signed torques of the rest's moving terms at the last evaluation (mass
+    /// bias, damping, the model's friction ramp), and the variance of their change.
     terms: Vec<[f64; 3]>,
     terms_set: bool,
     torque_step: Vec<f64>,
