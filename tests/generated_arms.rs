@@ -173,14 +173,12 @@ fn the_evaluation_campaign_is_generated_arms_apart_from_development() {
 /// numbers it prints: the other methods' false alarms and the oracle's own misses
 /// (docs/arms.md, "Arms nobody tuned for").
 ///
-/// Opt-in (`cargo test --release --test generated_arms -- --ignored`): it takes 4-20 minutes on
-/// two cores (20 arms' `init`, camera models and detector calibrations, 11 methods), and it
-/// misses on the hybrid's false alarms: on 71001.. with the implicit model step and its friction
-/// bound and the model-error state 2 alarms on 2 of the 20 healthy arms (without the state 7 on
-/// 4), everything else held (docs/arms.md; 8 on 5
-/// before the bound; on 70001.. with the explicit step 19 on 10).
+/// In CI since 2026-12-05 (fourteenth session), when it first passed: with the model-error
+/// state carried as a parameter error the hybrid raises no alarm on the 20 healthy arms (2 on 2
+/// with the thirteenth session's state, 7 on 4 without the state, 8 on 5 before the friction
+/// bound; on 70001.. with the explicit step 19 on 10). It takes about 4.5 minutes on two cores
+/// (20 arms' `init`, camera models and detector calibrations, 11 methods; 8.5 beside a campaign).
 #[test]
-#[ignore = "opt-in: misses today and takes 4-20 minutes (docs/arms.md, \"Arms nobody tuned for\")"]
 fn every_method_holds_on_twenty_generated_arms_nobody_tuned_for() {
     use aift::scenario::Method;
     use aift::scenario::campaign::{Campaign, Shard, Verdict, run_campaign};
