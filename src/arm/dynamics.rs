@@ -338,22 +338,7 @@ impl Dynamics {
     /// or factoring again: A = M after [`Self::forward_dynamics`], M + h D_eff after
     /// [`Self::forward_dynamics_implicit`].
     pub fn solve_factored(&self, b: &mut [f64]) {
-        let n = b.len();
-        let l = &self.factor;
-        for i in 0..n {
-            let mut v = b[i];
-            for k in 0..i {
-                v -= l[(i, k)] * b[k];
-            }
-            b[i] = v / l[(i, i)];
-        }
-        for i in (0..n).rev() {
-            let mut v = b[i];
-            for k in i + 1..n {
-                v -= l[(k, i)] * b[k];
-            }
-            b[i] = v / l[(i, i)];
-        }
+        solve_cholesky(&self.factor, b);
     }
 
     /// The right-hand side [`Self::solve_damped`] solves in place.
@@ -383,6 +368,26 @@ impl Dynamics {
         chol.solve_mut(&mut self.rhs);
         self.factor = chol.unpack_dirty();
         true
+    }
+}
+
+/// Solves L L' x = b in place, L the lower triangle of `l` (a Cholesky factor), without
+/// allocating.
+pub(crate) fn solve_cholesky(l: &DMatrix<f64>, b: &mut [f64]) {
+    let n = b.len();
+    for i in 0..n {
+        let mut v = b[i];
+        for k in 0..i {
+            v -= l[(i, k)] * b[k];
+        }
+        b[i] = v / l[(i, i)];
+    }
+    for i in (0..n).rev() {
+        let mut v = b[i];
+        for k in i + 1..n {
+            v -= l[(k, i)] * b[k];
+        }
+        b[i] = v / l[(i, i)];
     }
 }
 

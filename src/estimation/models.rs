@@ -306,7 +306,7 @@ impl ArmTransition {
             if slip_factored && self.stuck[j] {
                 self.column.fill(0.0);
                 self.column[j] = 1.0;
-                solve_lower(&self.slip_factor, &mut self.column);
+                crate::arm::dynamics::solve_cholesky(&self.slip_factor, &mut self.column);
                 for (k, m) in self.column.iter().enumerate() {
                     stiction_var[k] += m * m * self.stiction[j];
                 }
@@ -365,25 +365,6 @@ impl ArmTransition {
     /// The arm model it predicts with.
     pub fn model(&self) -> &Arc<ArmModel> {
         self.dynamics.model()
-    }
-}
-
-/// Solves L L' x = b in place, L the lower triangle of `l`.
-fn solve_lower(l: &nalgebra::DMatrix<f64>, b: &mut [f64]) {
-    let n = b.len();
-    for i in 0..n {
-        let mut v = b[i];
-        for k in 0..i {
-            v -= l[(i, k)] * b[k];
-        }
-        b[i] = v / l[(i, i)];
-    }
-    for i in (0..n).rev() {
-        let mut v = b[i];
-        for k in i + 1..n {
-            v -= l[(k, i)] * b[k];
-        }
-        b[i] = v / l[(i, i)];
     }
 }
 
