@@ -122,7 +122,7 @@ pub struct ArmTransition {
     /// Per joint, the factor the model error is carried by ([`CorrelatedError::carry`]); the
     /// last evaluation's acceleration, inertial and other variances of the budget (rad/s^2)^2;
     /// the inertial torque variance (scratch); and the lead filter's model-error estimate.
-    error_scale: Vec<f64>,
+    carry: Vec<f64>,
     last_acceleration: Vec<f64>,
     inertial_var: Vec<f64>,
     last_inertial_var: Vec<f64>,
@@ -171,7 +171,7 @@ impl ArmTransition {
             terms_set: false,
             torque_step: vec![0.0; n],
             step_var: vec![0.0; n],
-            error_scale: vec![1.0; n],
+            carry: vec![1.0; n],
             last_acceleration: vec![0.0; n],
             inertial_var: vec![0.0; n],
             last_inertial_var: vec![0.0; n],
@@ -343,7 +343,7 @@ impl ArmTransition {
             } else {
                 (1.0, total)
             };
-            self.error_scale[i] = carry;
+            self.carry[i] = carry;
             self.step[i] = step.sqrt();
             self.last_inertial_var[i] = a_new;
             self.last_rest_var[i] = b_new.max(0.0);
@@ -484,7 +484,7 @@ impl TransitionModel for ArmTransition {
             correlated: Some(CorrelatedError {
                 white: &self.white,
                 step: &self.step,
-                carry: &self.error_scale,
+                carry: &self.carry,
             }),
         }
     }
