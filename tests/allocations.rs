@@ -139,8 +139,9 @@ fn the_closed_loop_allocates_nothing_per_tick() {
 /// either. The detector (`pl-detect`, `deterministic`) tests the channels not isolated in its
 /// kept storage (it allocated a matrix every tick while a channel was isolated, 1-5 per tick);
 /// each alarm it raises allocates the list of the channels it isolated, once. The hybrid with
-/// its opt-in bank options (`actuators`, `restart_ruled_out`; the model-error state, its
-/// default, is off there since the actuator hypotheses need it off) allocates nothing either.
+/// its opt-in actuator hypotheses (`actuators`; the model-error state, its default, is off there
+/// since the actuator hypotheses need it off; `restart_ruled_out`, the default) allocates nothing
+/// either.
 #[test]
 fn the_closed_loop_allocates_nothing_while_faults_come_and_go() {
     let faults = [
@@ -188,8 +189,8 @@ fn the_closed_loop_allocates_nothing_while_faults_come_and_go() {
                 }
             }
         }
-        // The hybrid's opt-in bank options: actuator hypotheses (with the white model error
-        // they need) and ruled-out hypotheses restarted every tick.
+        // The hybrid's opt-in bank option: actuator hypotheses (with the white model error they
+        // need), ruled-out hypotheses restarted every tick (the default, set to say so).
         let options = common::with_faults(
             file,
             &faults,
