@@ -84,49 +84,6 @@ impl HypothesisBank {
         }
     }
 
-    /// The switching prior's better predecessor for each hypothesis, taken as its mean: before
-    /// the prior moves probability, hypothesis j is either j all along (weight (1 - s) p_j) or
-    /// the most probable hypothesis w switched to j now (weight leave p_w, leave = s / (m - 1));
-    /// where the switch weighs more and `eligible(j, w)`, j restarts from w's mean and keeps its
-    /// own covariance (a Kalman filter's covariance follows its noise model, not the data). A
-    /// hypothesis the data have ruled out since its last restart (p_j below leave p_w / (1 - s))
-    /// therefore cannot carry a mean that absorbed the evidence against it, and one that has
-    /// beaten the winner since keeps its own (the Viterbi choice of predecessor of a switching
-    /// Kalman filter; docs/method.md, "The hybrid"). Returns how many restarted.
-    pub fn restart_from_most_probable(
-        &mut self,
-        s: f64,
-        eligible: impl Fn(usize, usize) -> bool,
-    ) -> usize {
-        let m = self.active_count();
-        if m < 2 || s <= 0.0 {
-            return 0;
-        }
-        let leave = s / (m - 1) as f64;
-        let w = self.most_probable();
-        let jump = leave * self.probability[w];
-        let mut restarted = 0;
-        for j in 0..self.len() {
-            if j == w
-                || !self.active[j]
-                || (1.0 - s) * self.probability[j] >= jump
-                || !eligible(j, w)
-            {
-                continue;
-            }
-            let (source, target) = if j < w {
-                let (lo, hi) = self.filters.split_at_mut(w);
-                (&hi[0], &mut lo[j])
-            } else {
-                let (lo, hi) = self.filters.split_at_mut(j);
-                (&lo[w], &mut hi[0])
-            };
-            target.x.copy_from(&source.x);
-            restarted += 1;
-        }
-        restarted
-    }
-
     /// Predicts every active hypothesis one tick with the transition, hypothesis j's process
     /// noise scaled by `scale(j)`.
     pub fn predict(&mut self, transition: &Transition<'_>, scale: impl Fn(usize) -> f64) {
@@ -228,32 +185,26 @@ mod tests {
         }
         b
     }
-
-    /// With s = 3e-3 over four hypotheses (leave = 1e-3) and the winner at 0.9: a hypothesis
-    /// below leave p_w / (1 - s) = 9.027e-4 restarts from the winner's state, one above keeps
-    /// its own, the winner keeps its own; a restart takes the mean and keeps the covariance; one
-    /// not eligible stays; without switching nothing moves.
+    /// The switching prior is the symmetric Markov chain over the active hypotheses: it keeps
+    /// the total, moves p_j to (1 - s) p_j + s / (m - 1) (total - p_j), leaves inactive slots
+    /// alone, and its fixed point is the uniform distribution.
     #[test]
-    fn a_hypothesis_below_the_switching_inflow_restarts_from_the_winner() {
-        let p = vec![9.0e-4, 0.9, 9.1e-4, 0.0981];
-        let before = bank(p.clone());
-        let mut after = before.clone();
-        assert_eq!(after.restart_from_most_probable(3e-3, |_, _| true), 1);
-        assert_eq!(after.filters[0].x, before.filters[1].x);
-        assert_eq!(after.filters[0].p, before.filters[0].p);
-        let mut none = before.clone();
-        assert_eq!(
-            none.restart_from_most_probable(3e-3, |j, w| j != 0 || w != 1),
-            0
-        );
-        assert_eq!(none.filters[0].x, before.filters[0].x);
-        for j in 1..4 {
-            assert_eq!(after.filters[j].x, before.filters[j].x, "{j}");
-            assert_eq!(after.filters[j].p, before.filters[j].p, "{j}");
+    fn the_switching_prior_is_a_symmetric_markov_chain() {
+        let mut b = bank(vec![0.7, 0.2, 0.1, 0.0]);
+        b.active[3] = false;
+        b.switch(0.3);
+        let expect = [
+            0.7 * 0.7 + 0.15 * 0.3,
+            0.7 * 0.2 + 0.15 * 0.8,
+            0.7 * 0.1 + 0.15 * 0.9,
+        ];
+        for (p, e) in b.probability.iter().zip(expect) {
+            assert!((p - e).abs() < 1e-15, "{p} {e}");
         }
-        assert_eq!(after.probability, p);
-        let mut still = before.clone();
-        assert_eq!(still.restart_from_most_probable(0.0, |_, _| true), 0);
-        assert_eq!(still.filters[0].x, before.filters[0].x);
+        assert_eq!(b.probability[3], 0.0);
+        assert!((b.probability.iter().sum::<f64>() - 1.0).abs() < 1e-15);
+        let mut u = bank(vec![0.25; 4]);
+        u.switch(0.3);
+        assert!(u.probability.iter().all(|p| (p - 0.25).abs() < 1e-15));
     }
 }

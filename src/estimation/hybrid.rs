@@ -184,14 +184,16 @@ pub struct HybridConfig {
     #[serde(skip_serializing_if = "is_default_actuator_broad")]
     pub actuator_broad: f64,
     /// Every tick, the hypotheses the data have ruled out since their last restart and that
-    /// trust a channel the most probable hypothesis holds failed restart from its mean (the
-    /// switching prior's better predecessor; docs/method.md, "The hybrid", revived hypotheses):
-    /// a hypothesis revived by the switching prior cannot carry a mean that absorbed the fault
-    /// it lost to (an encoder bias read as a tachometer failure). On by default since
-    /// 2026-12-05 (fifteenth session; measured in docs/method.md: with the model-error state it
-    /// recovers 175 of 241 encoder-screen cells against 39, and loses one development cell, an
-    /// encoder drift, at 0.0204 rad); `false` is the earlier default. (Always written, so that
-    /// a scenario's fingerprint says which.)
+    /// trust a channel the most probable hypothesis holds failed are also run restarted from
+    /// its mean, and the state this tick's readings favour is kept (the switching prior's
+    /// better predecessor, judged with the data; docs/method.md, "The hybrid", revived
+    /// hypotheses): a hypothesis revived by the switching prior cannot carry a mean that
+    /// absorbed the fault it lost to (an encoder bias read as a tachometer failure), and one
+    /// that is right where the winner is wrong keeps its own. On by default since 2026-12-06
+    /// (measured in docs/method.md: 139 of 241 encoder-screen cells recovered where the oracle
+    /// recovers against 39, no runaway where a restart on the probabilities alone ran the arm
+    /// away); `false` is the earlier default. (Always written, so that a scenario's
+    /// fingerprint says which.)
     pub restart_ruled_out: bool,
     /// The bank's filters carry each joint's model-error acceleration as a state (docs/method.md,
     /// "Model error as a state"): the estimators' model is wrong by fixed parameter errors, so its
@@ -343,6 +345,15 @@ pub struct Hybrid {
     kept: Vec<bool>,
     /// Scratch: per hypothesis, whether it holds failed every key the most probable one does.
     extends_winner: Vec<bool>,
+    /// `restart_ruled_out`: per slot, the hypothesis restarted from the winner's mean this tick
+    /// (its own covariance), predicted and updated beside its own state; the one this tick's
+    /// readings favour is kept ([`Hybrid::restart_ruled_out`]).
+    restarted: Vec<Ekf>,
+    /// Per slot: whether `restarted` holds a candidate this tick, and ln(leave p_w) - ln((1 - s)
+    /// p_j), the prior log odds of the switch from the winner against j all along.
+    restart_candidate: Vec<bool>,
+    restart_prior: Vec<f64>,
+
     scratch_p: Vec<f64>,
     /// The last tick's readings (the stuck component's prediction).
     last: Vec<Option<f64>>,
@@ -397,6 +408,7 @@ impl Hybrid {
         for p in &mut probability[1..=k] {
             *p = 1e-3 / k as f64;
         }
+        let restarted = vec![ekf.clone(); h];
         Self {
             uaic,
             layout,
@@ -418,6 +430,9 @@ impl Hybrid {
             ticks: 0,
             kept: vec![false; h],
             extends_winner: vec![false; h],
+            restarted,
+            restart_candidate: vec![false; h],
+            restart_prior: vec![0.0; h],
             scratch_p: vec![0.0; h],
             last: vec![None; layout.len()],
             gap: DVector::zeros(dim),
@@ -693,14 +708,14 @@ impl Hybrid {
     /// N_stuck = N(y; y_last, (width sigma)^2), N_broad the broad innovation density the filter
     /// scores it with (docs/method.md, "The hybrid"), taken at the prediction (the sequential
     /// update scores it after the channels before it; with broad noise the two differ in the
-    /// last digits). Uses `self.variances` of hypothesis j.
-    fn stuck_evidence(&self, j: usize, input: &EstimatorInput<'_>) -> f64 {
+    /// last digits). Uses `self.variances` of hypothesis j and its state `f` (its own, or the
+    /// restarted one).
+    fn stuck_evidence(&self, j: usize, f: &Ekf, input: &EstimatorInput<'_>) -> f64 {
         let w = self.config.stuck_weight;
         if w <= 0.0 {
             return 0.0;
         }
         let (ln_healthy, ln_w) = ((1.0 - w).ln(), w.ln());
-        let f = &self.bank.filters[j];
         let mut total = 0.0;
         for c in 0..self.layout.len() {
             let r = self.variances[c];
@@ -764,14 +779,22 @@ impl Hybrid {
     }
 
     /// `restart_ruled_out`: every hypothesis the data have ruled out since its last restart
-    /// (its probability below the switching prior's inflow from the most probable hypothesis)
-    /// and that trusts a channel the winner holds failed restarts from the winner's mean,
-    /// keeping its own covariance ([`HypothesisBank::restart_from_most_probable`]): only such a
-    /// hypothesis can absorb the winner's fault into its state (an encoder bias the winner
-    /// blames, absorbed as motion by "the tachometer failed"), and its reading of that channel
-    /// is then judged against the winner's estimate with the channel's own precision. One that
-    /// holds failed everything the winner does keeps its state until the resync: a slow fault
-    /// (a drift) shows only in evidence it gathers over many ticks.
+    /// (its probability below the switching prior's inflow from the most probable hypothesis,
+    /// (1 - s) p_j < leave p_w) and that trusts a channel the winner holds failed is also run
+    /// restarted from the winner's mean, keeping its own covariance; after this tick's update
+    /// the state with the larger posterior weight is kept: the restart where ln(leave p_w) +
+    /// ll(restarted) > ln((1 - s) p_j) + ll(own) (the Viterbi choice of predecessor of a
+    /// switching Kalman filter, judged with this tick's readings; docs/method.md, "The hybrid",
+    /// revived hypotheses). p_j is the bank's probability, floored at 1e-300, so the prior odds
+    /// for the restart reach about 670 nats. Only such a hypothesis can absorb the winner's
+    /// fault into its state (an encoder bias the winner blames, absorbed as motion by "the
+    /// tachometer failed"); having lost hundreds of nats at the fault's onset it restarts unless
+    /// its own state explains this tick better by more than those odds. Where the winner is the
+    /// one that is wrong (a second fault while the first is not yet the base: the winner has
+    /// followed a frozen tachometer), the restarted state contradicts the channel the
+    /// hypothesis trusts by more, and it keeps its own. One that holds failed everything the
+    /// winner does keeps its state until the resync. This picks the candidates and their
+    /// restarted states (before the prediction).
     fn restart_ruled_out(&mut self) {
         let w = self.bank.most_probable();
         let keys = self.base_failed.len();
@@ -779,9 +802,25 @@ impl Hybrid {
             self.extends_winner[j] =
                 (0..keys).all(|k| !self.holds_failed(w, k) || self.holds_failed(j, k));
         }
-        let extends = &self.extends_winner;
-        self.bank
-            .restart_from_most_probable(self.config.switch, |j, _| !extends[j]);
+        let m = self.bank.active_count();
+        let s = self.config.switch;
+        self.restart_candidate.fill(false);
+        if m < 2 {
+            return;
+        }
+        let leave = s / (m - 1) as f64;
+        let jump = leave * self.bank.probability[w];
+        for j in 0..self.bank.len() {
+            let own = (1.0 - s) * self.bank.probability[j];
+            if j == w || !self.bank.active[j] || own >= jump || self.extends_winner[j] {
+                continue;
+            }
+            let r = &mut self.restarted[j];
+            r.x.copy_from(&self.bank.filters[w].x);
+            r.p.copy_from(&self.bank.filters[j].p);
+            self.restart_candidate[j] = true;
+            self.restart_prior[j] = jump.ln() - own.max(f64::MIN_POSITIVE).ln();
+        }
     }
 
     fn step_bank(&mut self, input: &EstimatorInput<'_>) {
@@ -845,15 +884,30 @@ impl Hybrid {
             let (scale, n) = (&self.joint_scale, self.layout.n_joints());
             self.bank
                 .predict_per_joint(&transition, |j, i| scale[j * n + i]);
+            for (j, r) in self.restarted.iter_mut().enumerate() {
+                if self.restart_candidate[j] {
+                    r.predict_scaled(&transition, |i| scale[j * n + i]);
+                    r.linearise();
+                }
+            }
             self.bank.switch(self.config.switch);
         }
         self.bank.linearise();
         for j in 0..h {
             if self.bank.active[j] {
                 self.hypothesis_variances(j, input);
-                let stuck = self.stuck_evidence(j, input);
-                self.bank.log_evidence[j] =
-                    self.bank.filters[j].update(input.readings, &self.variances) + stuck;
+                let stuck = self.stuck_evidence(j, &self.bank.filters[j], input);
+                let own = self.bank.filters[j].update(input.readings, &self.variances) + stuck;
+                self.bank.log_evidence[j] = own;
+                if self.restart_candidate[j] {
+                    let stuck = self.stuck_evidence(j, &self.restarted[j], input);
+                    let restarted =
+                        self.restarted[j].update(input.readings, &self.variances) + stuck;
+                    if restarted + self.restart_prior[j] > own {
+                        std::mem::swap(&mut self.bank.filters[j], &mut self.restarted[j]);
+                        self.bank.log_evidence[j] = restarted;
+                    }
+                }
             } else {
                 self.bank.log_evidence[j] = f64::NEG_INFINITY;
             }
@@ -1268,7 +1322,11 @@ mod tests {
         h.bank.linearise();
         // Slot 3 holds tachometer 1 (channel 2) failed; slot 0 trusts it.
         h.hypothesis_variances(3, &input);
-        assert_eq!(h.stuck_evidence(3, &input), 0.0, "no last reading yet");
+        assert_eq!(
+            h.stuck_evidence(3, &h.bank.filters[3], &input),
+            0.0,
+            "no last reading yet"
+        );
         let sigma = 1e-3;
         let w = h.config.stuck_weight;
         let direct = |h: &Hybrid, y: f64, last: f64| {
@@ -1281,15 +1339,19 @@ mod tests {
             ((1.0 - w) + w * gauss(y, last, width) / gauss(y, f.predicted(2), s)).ln()
         };
         h.last.copy_from_slice(&readings.values);
-        let repeated = h.stuck_evidence(3, &input);
+        let repeated = h.stuck_evidence(3, &h.bank.filters[3], &input);
         assert!((repeated - direct(&h, 0.01, 0.01)).abs() < 1e-9 * repeated.abs());
         assert!(repeated > 9.0, "{repeated}");
         h.last[2] = Some(0.01 - sigma);
-        let moved = h.stuck_evidence(3, &input);
+        let moved = h.stuck_evidence(3, &h.bank.filters[3], &input);
         assert!((moved - (1.0 - w).ln()).abs() < 1e-12, "{moved}");
         assert!((moved - direct(&h, 0.01, 0.01 - sigma)).abs() < 1e-12);
         h.last.copy_from_slice(&readings.values);
         h.hypothesis_variances(0, &input);
-        assert_eq!(h.stuck_evidence(0, &input), 0.0, "H_0 trusts every channel");
+        assert_eq!(
+            h.stuck_evidence(0, &h.bank.filters[0], &input),
+            0.0,
+            "H_0 trusts every channel"
+        );
     }
 }
