@@ -162,14 +162,11 @@ fn the_hybrid_recovers_two_faults_in_a_row_and_a_bias_the_one_failure_bank_lost(
 fn the_hybrid_swaps_a_wrong_first_blame_and_is_not_hurt_by_a_mild_tachometer_gain() {
     let engine = ["plant.engine=\"articulated\"", "duration=15.0"];
     let mut failures = Vec::new();
-    let drift = common::with_faults(
-        "panda_healthy.toml",
-        &["[[faults]]\nchannel = \"enc2\"\nkind = \"drift\"\nrate = 0.02\nstart = 5.0"],
-        &engine,
-    );
+    let enc2_drift = ["[[faults]]\nchannel = \"enc2\"\nkind = \"drift\"\nrate = 0.02\nstart = 5.0"];
+    let drift = common::with_faults("panda_healthy.toml", &enc2_drift, &engine);
     let drift_off = common::with_faults(
         "panda_healthy.toml",
-        &["[[faults]]\nchannel = \"enc2\"\nkind = \"drift\"\nrate = 0.02\nstart = 5.0"],
+        &enc2_drift,
         &[engine[0], engine[1], "hybrid.restart_ruled_out=false"],
     );
     let by_default = runs(&drift, &[Method::Hybrid], &[1, 2]);

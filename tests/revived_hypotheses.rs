@@ -1,4 +1,4 @@
-//! The hybrid's revived hypotheses (`hybrid.restart_ruled_out`, the default since 2026-12-05;
+//! The hybrid's revived hypotheses (`hybrid.restart_ruled_out`, the default since 2026-12-06;
 //! docs/method.md, "The hybrid"):
 //! a hypothesis the data ruled out restarts from the winner's mean instead of carrying a state
 //! that absorbed the fault it lost to. On generated arms no screen used (`aift gen-arm --seed

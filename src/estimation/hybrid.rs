@@ -353,7 +353,6 @@ pub struct Hybrid {
     /// p_j), the prior log odds of the switch from the winner against j all along.
     restart_candidate: Vec<bool>,
     restart_prior: Vec<f64>,
-
     scratch_p: Vec<f64>,
     /// The last tick's readings (the stuck component's prediction).
     last: Vec<Option<f64>>,
