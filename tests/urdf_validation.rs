@@ -570,3 +570,120 @@ proptest! {
         }
     }
 }
+
+/// A joint type URDF does not define is refused naming the joint and its line (not the
+/// parser's bare "unknown variant"); a missing type too.
+#[test]
+fn an_unknown_joint_type_names_the_joint() {
+    let text = good().replace(
+        r#"name="j2" type="continuous""#,
+        r#"name="j2" type="revolut""#,
+    );
+    match parse(&text) {
+        Err(e @ PlantError::Xml { .. }) => {
+            let msg = e.to_string();
+            assert!(
+                msg.contains("joint 'j2'") && msg.contains("`revolut`"),
+                "{msg}"
+            );
+            assert!(
+                msg.contains("line ") && msg.contains("revolute, continuous"),
+                "{msg}"
+            );
+        }
+        other => panic!("expected an XML error, got {:?}", other.map(|m| m.name)),
+    }
+    let text = good().replace(r#"name="j1" type="revolute""#, r#"name="j1""#);
+    let msg = parse(&text).unwrap_err().to_string();
+    assert!(
+        msg.contains("joint 'j1'") && msg.contains("no `type`"),
+        "{msg}"
+    );
+}
+
+/// Typos that urdf-rs passes over in silence, and that change the arm (the axis or a limit
+/// takes its default), are warned about naming the joint or link, the element and the line;
+/// so is a `<limit>` without the effort or velocity URDF requires. A valid file draws none.
+#[test]
+fn typos_that_change_the_arm_are_warned_about() {
+    assert!(parse(&good()).unwrap().warnings.is_empty());
+    let warned = |from: &str, to: &str, expect: &[&str]| {
+        let text = good().replacen(from, to, 1);
+        assert_ne!(text, good(), "{from}");
+        let m = parse(&text).unwrap();
+        assert!(
+            m.warnings
+                .iter()
+                .any(|w| expect.iter().all(|e| w.contains(e))),
+            "{from} -> {to}: {:?}",
+            m.warnings
+        );
+    };
+    warned(
+        r#"effort="10""#,
+        r#"efort="10""#,
+        &["joint 'j1'", "`efort`", "not URDF's"],
+    );
+    warned(
+        r#"effort="10""#,
+        r#"efort="10""#,
+        &["joint 'j1'", "<limit>", "no `effort`", "no effort limit"],
+    );
+    let typo = good().replacen("<axis", "<axsi", 1);
+    let line = 1 + typo[..typo.find("<axsi").unwrap()].matches('\n').count();
+    warned(
+        "<axis",
+        "<axsi",
+        &[
+            "joint 'j1'",
+            "element <axsi>",
+            &format!("(line {line})"),
+            "ignored",
+        ],
+    );
+    warned(
+        r#"<origin xyz="1 0 0"/>"#,
+        r#"<origin xyz="1 0 0" rpz="0 0 1"/>"#,
+        &["joint 'j1'", "`rpz`", "<origin>"],
+    );
+    // An attribute URDF requires, missing (the parser's own message names no link): an error
+    // naming the link or joint, the element and the line.
+    for (from, to, expect) in [
+        (
+            r#"<mass value="1"/>"#,
+            r#"<mass valeu="1"/>"#,
+            ["link 'a'", "<mass>", "`value`"],
+        ),
+        (
+            r#"ixy="0""#,
+            r#"ixyy="0""#,
+            ["link 'a'", "<inertia>", "`ixy`"],
+        ),
+        (
+            r#"<child link="b"/>"#,
+            r#"<child lnk="b"/>"#,
+            ["joint 'j2'", "<child>", "`link`"],
+        ),
+    ] {
+        let text = good().replacen(from, to, 1);
+        assert_ne!(text, good(), "{from}");
+        match parse(&text) {
+            Err(e @ PlantError::Xml { .. }) => {
+                let msg = e.to_string();
+                assert!(expect.iter().all(|x| msg.contains(x)), "{msg}");
+                assert!(msg.contains("(line ") && msg.contains("bad.urdf"), "{msg}");
+            }
+            other => panic!(
+                "{to}: expected an XML error, got {:?}",
+                other.map(|m| m.name)
+            ),
+        }
+    }
+    // Extensions outside links and joints (a transmission naming a joint) are not URDF's
+    // link or joint elements and draw nothing.
+    let text = good().replace(
+        "</robot>",
+        r#"<transmission name="t1"><joint name="j1"><hardwareInterface>x</hardwareInterface></joint></transmission><gazebo reference="a"><mu1>0.2</mu1></gazebo></robot>"#,
+    );
+    assert!(parse(&text).unwrap().warnings.is_empty());
+}

@@ -104,6 +104,52 @@ pub fn parse_urdf_with(
 pub(crate) struct Scan {
     /// Links (top-level `<link>` elements) that contain an `<inertial>`.
     links_with_inertial: HashSet<String>,
+    /// What the parser would pass over in silence: elements and attributes of a link or joint
+    /// that URDF does not define (a typo such as `<axsi>` or `efort` changes the arm: the axis
+    /// or the effort limit takes its default), a `<limit>` without the effort or velocity
+    /// URDF requires.
+    warnings: Vec<String>,
+}
+
+/// URDF's joint types.
+const JOINT_TYPES: [&str; 6] = [
+    "revolute",
+    "continuous",
+    "prismatic",
+    "fixed",
+    "floating",
+    "planar",
+];
+
+/// The children URDF defines for an element of a link or joint (by its path below the link
+/// or joint), and that element's attributes; `None`: not checked (a visual's geometry and
+/// material, extensions).
+fn urdf_schema(path: &[&str]) -> Option<(&'static [&'static str], &'static [&'static str])> {
+    Some(match path {
+        ["joint"] => (
+            &[
+                "origin",
+                "parent",
+                "child",
+                "axis",
+                "calibration",
+                "dynamics",
+                "limit",
+                "mimic",
+                "safety_controller",
+            ],
+            &["name", "type"],
+        ),
+        ["link"] => (&["inertial", "visual", "collision"], &["name"]),
+        ["link", "inertial"] => (&["origin", "mass", "inertia"], &[]),
+        ["joint", "limit"] => (&[], &["lower", "upper", "effort", "velocity"]),
+        ["joint", "dynamics"] => (&[], &["damping", "friction"]),
+        ["joint", "axis"] => (&[], &["xyz"]),
+        ["joint" | "link", "origin"] | ["link", "inertial", "origin"] => (&[], &["xyz", "rpy"]),
+        ["link", "inertial", "mass"] => (&[], &["value"]),
+        ["link", "inertial", "inertia"] => (&[], &["ixx", "ixy", "ixz", "iyy", "iyz", "izz"]),
+        _ => return None,
+    })
 }
 
 /// Which attributes are numeric, and how many numbers each holds.
@@ -208,6 +254,94 @@ pub(crate) fn scan(text: &str, path: &Path) -> Result<Scan, ArmError> {
                 })?
                 .into_owned();
             attributes.push((key, value));
+        }
+        // Elements and attributes URDF does not define, within a link or joint.
+        if depth >= 2 && (depth > 2 || name == "link" || name == "joint") {
+            let below: Vec<&str> = stack
+                .get(1..)
+                .unwrap_or(&[])
+                .iter()
+                .map(String::as_str)
+                .chain(std::iter::once(name.as_str()))
+                .collect();
+            let what = || match &owner {
+                Some((kind, n)) if depth > 2 => format!("{kind} '{n}'"),
+                _ => format!(
+                    "<{name}> '{}'",
+                    attributes
+                        .iter()
+                        .find(|(k, _)| k == "name")
+                        .map_or("", |(_, v)| v.as_str())
+                ),
+            };
+            if depth > 2
+                && let Some((children, _)) = urdf_schema(&below[..below.len() - 1])
+                && !children.contains(&name.as_str())
+            {
+                out.warnings.push(format!(
+                    "{}: element <{name}> (line {}) is not URDF's; ignored",
+                    what(),
+                    line_of(text, position)
+                ));
+            }
+            if let Some((_, known)) = urdf_schema(&below) {
+                for (key, _) in &attributes {
+                    if !known.contains(&key.as_str()) && !key.starts_with("xmlns") {
+                        out.warnings.push(format!(
+                            "{}: attribute `{key}` of <{name}> (line {}) is not URDF's; ignored",
+                            what(),
+                            line_of(text, position)
+                        ));
+                    }
+                }
+            }
+            // Attributes URDF requires and the parser would refuse without naming the link.
+            let required: &[&str] = match below.as_slice() {
+                ["link", "inertial", "mass"] => &["value"],
+                ["link", "inertial", "inertia"] => &["ixx", "ixy", "ixz", "iyy", "iyz", "izz"],
+                ["joint", "parent" | "child"] => &["link"],
+                _ => &[],
+            };
+            for key in required {
+                if !attributes.iter().any(|(k, _)| k == key) {
+                    return Err(xml_error(format!(
+                        "{}: <{name}> (line {}) has no `{key}`, which URDF requires",
+                        what(),
+                        line_of(text, position)
+                    )));
+                }
+            }
+            if below == ["joint", "limit"] {
+                for required in ["effort", "velocity"] {
+                    if !attributes.iter().any(|(k, _)| k == required) {
+                        out.warnings.push(format!(
+                            "{}: <limit> (line {}) has no `{required}`, which URDF requires; \
+                             simulated with no {required} limit",
+                            what(),
+                            line_of(text, position)
+                        ));
+                    }
+                }
+            }
+        }
+        if depth == 2 && name == "joint" {
+            let joint_name = attributes
+                .iter()
+                .find(|(k, _)| k == "name")
+                .map_or("", |(_, v)| v.as_str());
+            match attributes.iter().find(|(k, _)| k == "type") {
+                Some((_, t)) if JOINT_TYPES.contains(&t.as_str()) => {}
+                found => {
+                    return Err(xml_error(format!(
+                        "joint '{joint_name}' (line {}): {}; URDF's joint types are {}",
+                        line_of(text, position),
+                        found.map_or("no `type`".to_string(), |(_, t)| format!(
+                            "type `{t}` is not a joint type"
+                        )),
+                        JOINT_TYPES.join(", ")
+                    )));
+                }
+            }
         }
         if depth == 2 {
             owner = (name == "link" || name == "joint").then(|| {
@@ -347,7 +481,7 @@ pub(crate) fn build_model(
     options: &UrdfOptions,
 ) -> Result<ArmModel, ArmError> {
     let p = || path.to_path_buf();
-    let mut warnings = Vec::new();
+    let mut warnings = scanned.warnings.clone();
     let link_index = index_names(robot, path)?;
     let tree = topology(robot, &link_index, path)?;
     let walk = walk_tree(robot, &link_index, &tree, path, &mut warnings)?;

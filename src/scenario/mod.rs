@@ -91,8 +91,10 @@ impl ScenarioError {
             ScenarioError::Robot { field, .. } => field,
             _ => return None,
         };
+        // Overrides apply in order: the last one that touched the key set what is refused.
         overrides
             .iter()
+            .rev()
             .find(|o| {
                 let key = o.split_once('=').map_or(o.as_str(), |(k, _)| k.trim());
                 field == key

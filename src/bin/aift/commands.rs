@@ -347,15 +347,27 @@ fn print_campaign_json(dir: &Path, shard: Shard, records: &CampaignRecords) -> R
 
 /// `aift replay LOG --scenario S`: a method over a recorded log, into a run folder.
 fn replay(args: ReplayArgs) -> Result<(), Failure> {
-    let mut setup = prepare(&ScenarioArgs {
+    let loaded = load(&ScenarioArgs {
         scenario: args.scenario.clone(),
         set: args.set.clone(),
     })?;
     let method = match &args.method {
         Some(m) => parse_method(m)?,
-        None => setup.scenario().precision.method,
+        None => loaded.scenario.precision.method,
     };
-    let seed = args.seed.unwrap_or(setup.scenario().seed);
+    let seed = args.seed.unwrap_or(loaded.scenario.seed);
+    // The files named and the output, before the GP's fit.
+    check_input_file("LOG", Some(&args.log))?;
+    check_input_file("--calib", args.calib.as_ref())?;
+    let dir = args.out.clone().unwrap_or_else(|| {
+        let stem = args
+            .log
+            .file_stem()
+            .map_or("log".into(), |s| s.to_string_lossy().into_owned());
+        PathBuf::from("runs").join(format!("replay-{stem}-{method}"))
+    });
+    let staged = stage(&dir, OutputKind::Folder, args.force)?;
+    let mut setup = prepare_loaded(loaded, &args.set)?;
     let joint_names: Vec<String> = setup.model.joints.iter().map(|j| j.name.clone()).collect();
     let log = aift::logs::RecordedLog::read(
         &args.log,
@@ -375,14 +387,6 @@ fn replay(args: ReplayArgs) -> Result<(), Failure> {
         }
     })?;
     let dt = setup.scenario().dt;
-    let dir = args.out.clone().unwrap_or_else(|| {
-        let stem = args
-            .log
-            .file_stem()
-            .map_or("log".into(), |s| s.to_string_lossy().into_owned());
-        PathBuf::from("runs").join(format!("replay-{stem}-{method}"))
-    });
-    let staged = stage(&dir, OutputKind::Folder, args.force)?;
     let calibration = calibration_for(&setup, &[method], args.calib.as_ref())?;
     let (result, info) =
         run_files::replay_staged(&staged, &setup, method, seed, calibration.as_deref(), &log)
@@ -559,6 +563,16 @@ fn gen_arm(args: GenArmArgs) -> Result<(), Failure> {
 }
 
 fn init(args: InitArgs) -> Result<(), Failure> {
+    // The scenario must not replace the URDF it is written for (with --force it would).
+    if let (Ok(a), Ok(b)) = (args.out.canonicalize(), args.urdf.canonicalize())
+        && a == b
+    {
+        return Err(bad_input(anyhow!(
+            "--out {} is the URDF given (--urdf {}): the scenario would replace it",
+            args.out.display(),
+            args.urdf.display()
+        )));
+    }
     // Refuses a folder, a device or a path ending in `/` before the question of --force.
     let staged = stage(&args.out, OutputKind::File, true)?;
     if args.out.exists() && !args.force {
@@ -662,9 +676,11 @@ fn scenario_failure(error: aift::scenario::ScenarioError, overrides: &[String]) 
     }
 }
 
-/// Loads the scenario, then the arm and the GP; the arm's warnings go to stderr.
-fn prepare(args: &ScenarioArgs) -> Result<RunSetup, Failure> {
-    let setup = RunSetup::prepare(load(args)?).map_err(|e| scenario_failure(e, &args.set))?;
+/// The arm and the GP of a loaded scenario; the arm's warnings go to stderr. Commands load
+/// first, check their own inputs and stage their output, then call this (the GP's fit is the
+/// first work).
+fn prepare_loaded(loaded: LoadedScenario, overrides: &[String]) -> Result<RunSetup, Failure> {
+    let setup = RunSetup::prepare(loaded).map_err(|e| scenario_failure(e, overrides))?;
     for w in &setup.model.warnings {
         errln!("warning: {}: {w}", setup.model.source.display());
     }
@@ -672,6 +688,14 @@ fn prepare(args: &ScenarioArgs) -> Result<RunSetup, Failure> {
         errln!("warning: {}: {w}", setup.loaded.path.display());
     }
     Ok(setup)
+}
+
+/// An input file named by a flag must exist before any work starts.
+fn check_input_file(flag: &str, path: Option<&PathBuf>) -> Result<(), Failure> {
+    match path {
+        Some(p) if !p.is_file() => Err(bad_input(anyhow!("{flag} {}: no such file", p.display()))),
+        _ => Ok(()),
+    }
 }
 
 fn parse_method(name: &str) -> Result<Method, Failure> {
@@ -724,20 +748,22 @@ fn describe_gp(setup: &RunSetup) -> String {
 }
 
 fn run(args: RunArgs) -> Result<(), Failure> {
-    let mut setup = prepare(&args.scenario)?;
+    let loaded = load(&args.scenario)?;
     let method = match &args.method {
         Some(m) => parse_method(m)?,
-        None => setup.scenario().precision.method,
+        None => loaded.scenario.precision.method,
     };
-    let seed = args.seed.unwrap_or(setup.scenario().seed);
+    let seed = args.seed.unwrap_or(loaded.scenario.seed);
+    let dir = args.out.clone().unwrap_or_else(|| {
+        PathBuf::from("runs").join(format!("{}-{}-{}", loaded.scenario.name, method, seed))
+    });
+    // Every input is checked and the output staged before any work (the GP's fit included);
+    // the folder appears only when every file is written.
+    check_input_file("--calib", args.calib.as_ref())?;
+    let staged = stage(&dir, OutputKind::Folder, args.force)?;
+    let mut setup = prepare_loaded(loaded, &args.scenario.set)?;
     setup.loaded.scenario.precision.method = method;
     setup.loaded.scenario.seed = seed;
-    let dir = args.out.clone().unwrap_or_else(|| {
-        PathBuf::from("runs").join(format!("{}-{}-{}", setup.scenario().name, method, seed))
-    });
-    // Every input is checked and the output staged before any work; the folder appears only
-    // when every file is written.
-    let staged = stage(&dir, OutputKind::Folder, args.force)?;
     let calibration = calibration_for(&setup, &[method], args.calib.as_ref())?;
     let run = scenario::Run::new(&setup, method)
         .seed(seed)
@@ -874,12 +900,13 @@ fn parse_methods(list: &[String]) -> Result<Vec<Method>, Failure> {
 
 fn table(args: TableArgs) -> Result<(), Failure> {
     let start = std::time::Instant::now();
-    let setup = prepare(&args.scenario)?;
+    // Every input of the command is checked and the output staged before the GP's fit.
+    let loaded = load(&args.scenario)?;
     let methods = parse_methods(&args.methods)?;
     if args.seeds == 0 || args.seeds > MAX_SEEDS {
         return Err(bad_input(anyhow!("--seeds must be in 1..={MAX_SEEDS}")));
     }
-    let first = setup.scenario().seed;
+    let first = loaded.scenario.seed;
     let seeds: Vec<u64> = (0..args.seeds as u64)
         .map(|i| first.checked_add(i))
         .collect::<Option<_>>()
@@ -887,8 +914,10 @@ fn table(args: TableArgs) -> Result<(), Failure> {
     let dir = args
         .out
         .clone()
-        .unwrap_or_else(|| PathBuf::from("tables").join(&setup.scenario().name));
+        .unwrap_or_else(|| PathBuf::from("tables").join(&loaded.scenario.name));
+    check_input_file("--calib", args.calib.as_ref())?;
     let staged = stage(&dir, OutputKind::Folder, args.force)?;
+    let setup = prepare_loaded(loaded, &args.scenario.set)?;
     let calibration = calibration_for(&setup, &methods, args.calib.as_ref())?;
     let bar = indicatif::ProgressBar::new((methods.len() * seeds.len()) as u64);
     if !std::io::IsTerminal::is_terminal(&std::io::stderr()) {
@@ -929,12 +958,13 @@ fn table(args: TableArgs) -> Result<(), Failure> {
 }
 
 fn calibrate_cmd(args: CalibrateArgs) -> Result<(), Failure> {
-    let setup = prepare(&args.scenario)?;
+    let loaded = load(&args.scenario)?;
+    let staged = stage(&args.out, OutputKind::File, true)?;
+    let setup = prepare_loaded(loaded, &args.scenario.set)?;
     let runs = args
         .runs
         .unwrap_or(setup.scenario().detector.calibration_runs);
     calibrate::check_size(&setup, runs).map_err(bad_input)?;
-    let staged = stage(&args.out, OutputKind::File, true)?;
     let start = std::time::Instant::now();
     let cal = calibrate::calibrate(&setup, runs).map_err(bad_input)?;
     staged
@@ -1018,11 +1048,13 @@ fn bench(args: BenchArgs) -> Result<(), Failure> {
             "--ticks must be in 1..={MAX_BENCH_TICKS}"
         )));
     }
-    let setup = prepare(&args.scenario)?;
+    let loaded = load(&args.scenario)?;
     let method = match &args.method {
         Some(m) => parse_method(m)?,
-        None => setup.scenario().precision.method,
+        None => loaded.scenario.precision.method,
     };
+    check_input_file("--calib", args.calib.as_ref())?;
+    let setup = prepare_loaded(loaded, &args.scenario.set)?;
     let calibration = calibration_for(&setup, &[method], args.calib.as_ref())?;
     let figures = scenario::bench::bench(&setup, method, calibration.as_deref(), args.ticks)
         .map_err(bad_input)?;
