@@ -62,14 +62,23 @@ pub fn init_thread_pool() -> Option<String> {
     })
 }
 
-/// An error and its sources joined by `: `, as the CLI prints them (anyhow's `{:#}`).
+/// An error and its sources joined by `: ` (a source the text already ends with once), as the
+/// CLI prints them.
 pub fn error_chain(error: &dyn std::error::Error) -> String {
     let mut text = error.to_string();
     let mut source = error.source();
     while let Some(e) = source {
-        text.push_str(": ");
-        text.push_str(&e.to_string());
+        push_cause(&mut text, &e.to_string());
         source = e.source();
     }
     text
+}
+
+/// Appends `: cause` to an error's text, unless the text already ends with it (an error whose
+/// message includes its source's, which `#[source]` also exposes, would print it twice).
+pub fn push_cause(text: &mut String, cause: &str) {
+    if !text.ends_with(cause) {
+        text.push_str(": ");
+        text.push_str(cause);
+    }
 }

@@ -1276,3 +1276,14 @@ fn the_final_error_is_against_the_target_in_force_at_the_end() {
         assert_eq!(*e, (q - t).abs());
     }
 }
+
+/// An error whose message already ends with its cause's prints that cause once.
+#[test]
+fn an_error_prints_its_cause_once() {
+    let tmp = tempfile::tempdir().unwrap();
+    let o = aift(&["run", "nosuch.toml", "--out", "o"], tmp.path());
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("nosuch.toml"), "{stderr}");
+    assert_eq!(stderr.matches("os error 2").count(), 1, "{stderr}");
+}

@@ -1073,6 +1073,20 @@ fn bench(args: BenchArgs) -> Result<(), Failure> {
     Ok(())
 }
 
+/// A number for people: ten significant digits (no 32.699999999999996), and in exponent form
+/// beyond 1e9 or below 1e-4 (no 309-digit limits).
+fn human(v: f64) -> String {
+    if !v.is_finite() {
+        return v.to_string();
+    }
+    let r: f64 = format!("{v:.9e}").parse().unwrap_or(v);
+    if r != 0.0 && (r.abs() >= 1e9 || r.abs() < 1e-4) {
+        format!("{r:e}")
+    } else {
+        format!("{r}")
+    }
+}
+
 fn check_urdf(args: CheckUrdfArgs) -> Result<(), Failure> {
     let model = arm::load_urdf_with(
         &args.path,
@@ -1094,10 +1108,10 @@ fn check_urdf(args: CheckUrdfArgs) -> Result<(), Failure> {
     for (i, j) in model.joints.iter().enumerate() {
         let axis = j.axis.into_inner();
         let limits = match j.limits {
-            Some((lo, hi)) => format!("[{lo}, {hi}]"),
+            Some((lo, hi)) => format!("[{}, {}]", human(lo), human(hi)),
             None => "none".into(),
         };
-        let effort = j.effort.map_or("none".into(), |e| format!("{e}"));
+        let effort = j.effort.map_or("none".into(), human);
         say!(
             args.json,
             "  {}. {} ({}) parent '{}' child '{}' axis ({}, {}, {}) limits {} effort {} damping {} friction {}",
@@ -1106,13 +1120,13 @@ fn check_urdf(args: CheckUrdfArgs) -> Result<(), Failure> {
             j.kind.name(),
             model.bodies[j.parent_body].link,
             model.bodies[j.child_body].link,
-            axis.x,
-            axis.y,
-            axis.z,
+            human(axis.x),
+            human(axis.y),
+            human(axis.z),
             limits,
             effort,
-            j.damping,
-            j.friction
+            human(j.damping),
+            human(j.friction)
         );
     }
     say!(args.json, "links:");
@@ -1123,14 +1137,14 @@ fn check_urdf(args: CheckUrdfArgs) -> Result<(), Failure> {
                 args.json,
                 "  {} mass {} kg (body '{}')",
                 l.name,
-                l.mass,
+                human(l.mass),
                 body
             );
         } else {
             say!(args.json, "  {} massless frame (body '{}')", l.name, body);
         }
     }
-    say!(args.json, "total mass: {} kg", model.total_mass());
+    say!(args.json, "total mass: {} kg", human(model.total_mass()));
     match &args.ee {
         Some(ee) => say!(args.json, "end effector: {ee}"),
         None => match model.link("ee") {
@@ -1287,4 +1301,20 @@ fn open_loop_rows(samples: &[plant::OpenLoopSample]) -> Result<Vec<Vec<f64>>, Fa
             row
         })
         .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::human;
+
+    #[test]
+    fn numbers_for_people_have_ten_digits_and_no_long_tails() {
+        assert_eq!(human(32.699999999999996), "32.7");
+        assert_eq!(human(0.6320060009999999), "0.632006001");
+        assert_eq!(human(1e308), "1e308");
+        assert_eq!(human(1e-9), "1e-9");
+        assert_eq!(human(0.0), "0");
+        assert_eq!(human(-2.5), "-2.5");
+        assert_eq!(human(f64::INFINITY), "inf");
+    }
 }

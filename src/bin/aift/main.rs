@@ -23,7 +23,12 @@ fn main() -> ExitCode {
     let stdout_failure = output::finish();
     match result {
         Err(failure) => {
-            errln!("error: {:#}", failure.error);
+            let mut chain = failure.error.chain();
+            let mut text = chain.next().map(|e| e.to_string()).unwrap_or_default();
+            for cause in chain {
+                aift::push_cause(&mut text, &cause.to_string());
+            }
+            errln!("error: {text}");
             ExitCode::from(failure.code)
         }
         Ok(()) => match stdout_failure {
