@@ -74,10 +74,13 @@ pub fn error_chain(error: &dyn std::error::Error) -> String {
     text
 }
 
-/// Appends `: cause` to an error's text, unless the text already ends with it (an error whose
-/// message includes its source's, which `#[source]` also exposes, would print it twice).
+/// Appends `: cause` to an error's text, unless the text already ends with `: cause` (an error
+/// whose message includes its source's, which `#[source]` also exposes, would print it twice).
 pub fn push_cause(text: &mut String, cause: &str) {
-    if !text.ends_with(cause) {
+    let told = text
+        .strip_suffix(cause)
+        .is_some_and(|head| head.ends_with(": "));
+    if !told {
         text.push_str(": ");
         text.push_str(cause);
     }

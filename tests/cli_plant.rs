@@ -31,6 +31,26 @@ fn check_urdf_prints_the_arm_and_exits_0() {
     }
 }
 
+/// Without a link named `ee`, check-urdf says where `init` would put the end effector (its
+/// rule: a tool-point name on the last joint's body, else that body's last link).
+#[test]
+fn check_urdf_names_inits_end_effector_when_none_is_named_ee() {
+    let dir = tempfile::tempdir().unwrap();
+    let urdf = dir.path().join("arm.urdf");
+    let text = std::fs::read_to_string(repo("urdf/planar_2dof.urdf"))
+        .unwrap()
+        .replace("\"ee\"", "\"tool_tip\"");
+    assert!(text.contains("tool_tip"));
+    std::fs::write(&urdf, text).unwrap();
+    let out = aift().args(["check-urdf"]).arg(&urdf).output().unwrap();
+    assert_eq!(out.status.code(), Some(0));
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains("none named 'ee'; `init` would put it on 'tool_tip'"),
+        "{text}"
+    );
+}
+
 #[test]
 fn check_urdf_bad_inputs_exit_2_with_the_file_named() {
     let dir = tempfile::tempdir().unwrap();

@@ -1185,7 +1185,7 @@ fn a_commands_own_inputs_are_checked_before_the_camera_model() {
                 "--out",
                 "o",
             ],
-            vec!["missing.mcap", "no such file"],
+            vec!["missing.mcap", "no such file or folder"],
         ),
     ] {
         let o = aift(&args, d);
@@ -1193,6 +1193,9 @@ fn a_commands_own_inputs_are_checked_before_the_camera_model() {
         assert!(!stderr.contains("broken_gp"), "{args:?}: {stderr}");
         refused(&args, &needles, d, "o");
     }
+    // A scenario the arm refuses is refused before the default output's folder is made.
+    refused(&["run", "--set", "duration=-5"], &["duration"], d, "runs");
+    refused(&["table", "--set", "dt=0"], &["dt"], d, "tables");
 }
 
 /// `init --force` never writes the scenario over the URDF it reads.

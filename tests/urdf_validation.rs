@@ -622,7 +622,7 @@ fn typos_that_change_the_arm_are_warned_about() {
     warned(
         r#"effort="10""#,
         r#"efort="10""#,
-        &["joint 'j1'", "`efort`", "not URDF's"],
+        &["joint 'j1'", "`efort`", "not URDF 1.0's"],
     );
     warned(
         r#"effort="10""#,
@@ -664,6 +664,11 @@ fn typos_that_change_the_arm_are_warned_about() {
             r#"<child lnk="b"/>"#,
             ["joint 'j2'", "<child>", "`link`"],
         ),
+        (
+            r#"velocity="1""#,
+            r#"velocty="1""#,
+            ["joint 'j1'", "<limit>", "`velocity`"],
+        ),
     ] {
         let text = good().replacen(from, to, 1);
         assert_ne!(text, good(), "{from}");
@@ -686,4 +691,58 @@ fn typos_that_change_the_arm_are_warned_about() {
         r#"<transmission name="t1"><joint name="j1"><hardwareInterface>x</hardwareInterface></joint></transmission><gazebo reference="a"><mu1>0.2</mu1></gazebo></robot>"#,
     );
     assert!(parse(&text).unwrap().warnings.is_empty());
+}
+
+/// What later URDF versions define is not warned about in files of those versions
+/// (`quat_xyzw` from 1.1; a limit's `acceleration`, `deceleration`, `jerk` from 1.2, where an
+/// omitted effort or velocity means no limit), nor are namespaced extensions; in a 1.0 file the
+/// newer attributes are warned about (urdf-rs ignores them there). Warnings are bounded: a
+/// file full of unknown attributes draws at most 20 and a count of the rest.
+#[test]
+fn later_urdf_versions_and_extensions_are_not_typos_and_warnings_are_bounded() {
+    let v12 = good()
+        .replacen(
+            r#"<robot name="t">"#,
+            r#"<robot name="t" version="1.2" xmlns:drake="http://drake.mit.edu">"#,
+            1,
+        )
+        .replacen(
+            r#"effort="10" velocity="1""#,
+            r#"acceleration="5" jerk="100""#,
+            1,
+        )
+        .replacen(
+            r#"<origin xyz="1 0 0"/>"#,
+            r#"<origin xyz="1 0 0" quat_xyzw="0 0 0 1"/>"#,
+            1,
+        )
+        .replacen(
+            r#"<axis xyz="0 -1 0"/>"#,
+            r#"<axis xyz="0 -1 0" drake:acc="1"/>"#,
+            1,
+        );
+    let m = parse(&v12).unwrap();
+    assert!(m.warnings.is_empty(), "{:?}", m.warnings);
+    let v10 = good().replacen(
+        r#"effort="10" velocity="1""#,
+        r#"effort="10" velocity="1" jerk="100""#,
+        1,
+    );
+    let m = parse(&v10).unwrap();
+    assert!(
+        m.warnings
+            .iter()
+            .any(|w| w.contains("`jerk`") && w.contains("not URDF 1.0's")),
+        "{:?}",
+        m.warnings
+    );
+    let many: String = (0..30).map(|i| format!(" x{i}=\"1\"")).collect();
+    let noisy = good().replacen(
+        r#"<mass value="1"/>"#,
+        &format!(r#"<mass value="1"{many}/>"#),
+        1,
+    );
+    let m = parse(&noisy).unwrap();
+    assert_eq!(m.warnings.len(), 21, "{:?}", m.warnings);
+    assert!(m.warnings[20].contains("10 more"), "{:?}", m.warnings[20]);
 }

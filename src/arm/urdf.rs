@@ -112,14 +112,31 @@ pub(crate) struct Scan {
 }
 
 /// URDF's joint types.
-const JOINT_TYPES: [&str; 6] = [
+const JOINT_TYPES: [&str; 7] = [
     "revolute",
     "continuous",
     "prismatic",
     "fixed",
     "floating",
     "planar",
+    "spherical",
 ];
+
+/// Most warnings the streaming pass collects; the rest are counted in one last warning.
+const MAX_SCAN_WARNINGS: usize = 20;
+
+/// Attributes later URDF versions add: `quat_xyzw` of `<origin>` (1.1), `acceleration`,
+/// `deceleration` and `jerk` of a joint's `<limit>` (1.2); urdf-rs reads them from that version
+/// on and ignores them before, as urdfdom does.
+fn versioned_attribute(path: &[&str], attribute: &str, version: (u32, u32)) -> bool {
+    match (path.last().copied(), attribute) {
+        (Some("origin"), "quat_xyzw") => version >= (1, 1),
+        (Some("limit"), "acceleration" | "deceleration" | "jerk") => {
+            path == ["joint", "limit"] && version >= (1, 2)
+        }
+        _ => false,
+    }
+}
 
 /// The children URDF defines for an element of a link or joint (by its path below the link
 /// or joint), and that element's attributes; `None`: not checked (a visual's geometry and
@@ -190,6 +207,11 @@ pub(crate) fn scan(text: &str, path: &Path) -> Result<Scan, ArmError> {
     let mut owner: Option<(&'static str, String)> = None;
     let mut out = Scan::default();
     let mut saw_root = false;
+    // `<robot version>` (urdf-rs' reading: absent or malformed is 1.0).
+    let mut version = (1u32, 0u32);
+    // The line of the current element, counted incrementally (positions only grow).
+    let (mut counted_to, mut counted_line) = (0usize, 1usize);
+    let mut skipped_warnings = 0usize;
     loop {
         let position = reader.buffer_position() as usize;
         let event = reader.read_event().map_err(|e| {
@@ -255,8 +277,22 @@ pub(crate) fn scan(text: &str, path: &Path) -> Result<Scan, ArmError> {
                 .into_owned();
             attributes.push((key, value));
         }
-        // Elements and attributes URDF does not define, within a link or joint.
+        if depth == 1
+            && let Some((_, v)) = attributes.iter().find(|(k, _)| k == "version")
+            && let Some((major, minor)) = v.trim().split_once('.')
+            && let (Ok(major), Ok(minor)) = (major.parse(), minor.parse())
+        {
+            version = (major, minor);
+        }
+        // Elements and attributes URDF does not define, within a link or joint (extensions with
+        // a namespace prefix are not URDF's to judge).
         if depth >= 2 && (depth > 2 || name == "link" || name == "joint") {
+            counted_line += text.as_bytes()[counted_to..position.max(counted_to)]
+                .iter()
+                .filter(|&&b| b == b'\n')
+                .count();
+            counted_to = counted_to.max(position);
+            let line = counted_line;
             let below: Vec<&str> = stack
                 .get(1..)
                 .unwrap_or(&[])
@@ -274,54 +310,72 @@ pub(crate) fn scan(text: &str, path: &Path) -> Result<Scan, ArmError> {
                         .map_or("", |(_, v)| v.as_str())
                 ),
             };
+            let mut warn = |message: String| {
+                if out.warnings.len() < MAX_SCAN_WARNINGS {
+                    out.warnings.push(message);
+                } else {
+                    skipped_warnings += 1;
+                }
+            };
             if depth > 2
+                && !name.contains(':')
                 && let Some((children, _)) = urdf_schema(&below[..below.len() - 1])
                 && !children.contains(&name.as_str())
             {
-                out.warnings.push(format!(
-                    "{}: element <{name}> (line {}) is not URDF's; ignored",
-                    what(),
-                    line_of(text, position)
+                warn(format!(
+                    "{}: element <{name}> (line {line}) is not URDF's; ignored",
+                    what()
                 ));
             }
             if let Some((_, known)) = urdf_schema(&below) {
                 for (key, _) in &attributes {
-                    if !known.contains(&key.as_str()) && !key.starts_with("xmlns") {
-                        out.warnings.push(format!(
-                            "{}: attribute `{key}` of <{name}> (line {}) is not URDF's; ignored",
+                    if !known.contains(&key.as_str())
+                        && !key.contains(':')
+                        && !key.starts_with("xmlns")
+                        && !versioned_attribute(&below, key, version)
+                    {
+                        warn(format!(
+                            "{}: attribute `{key}` of <{name}> (line {line}) is not URDF {}.{}'s; \
+                             ignored",
                             what(),
-                            line_of(text, position)
+                            version.0,
+                            version.1
                         ));
                     }
                 }
             }
-            // Attributes URDF requires and the parser would refuse without naming the link.
+            // Attributes URDF requires and the parser would refuse without naming the link or
+            // joint (a limit's velocity before URDF 1.2).
             let required: &[&str] = match below.as_slice() {
                 ["link", "inertial", "mass"] => &["value"],
                 ["link", "inertial", "inertia"] => &["ixx", "ixy", "ixz", "iyy", "iyz", "izz"],
                 ["joint", "parent" | "child"] => &["link"],
+                ["joint", "limit"] if version < (1, 2) => &["velocity"],
                 _ => &[],
             };
             for key in required {
                 if !attributes.iter().any(|(k, _)| k == key) {
                     return Err(xml_error(format!(
-                        "{}: <{name}> (line {}) has no `{key}`, which URDF requires",
+                        "{}: <{name}> (line {line}) has no `{key}`, which URDF {}.{} requires",
                         what(),
-                        line_of(text, position)
+                        version.0,
+                        version.1
                     )));
                 }
             }
-            if below == ["joint", "limit"] {
-                for required in ["effort", "velocity"] {
-                    if !attributes.iter().any(|(k, _)| k == required) {
-                        out.warnings.push(format!(
-                            "{}: <limit> (line {}) has no `{required}`, which URDF requires; \
-                             simulated with no {required} limit",
-                            what(),
-                            line_of(text, position)
-                        ));
-                    }
-                }
+            // Before URDF 1.2 a limit's effort is required too; urdf-rs reads it as 0, which
+            // the loader takes for no limit. (From 1.2 on an omitted limit means none.)
+            if below == ["joint", "limit"]
+                && version < (1, 2)
+                && !attributes.iter().any(|(k, _)| k == "effort")
+            {
+                warn(format!(
+                    "{}: <limit> (line {line}) has no `effort`, which URDF {}.{} requires; \
+                     simulated with no effort limit",
+                    what(),
+                    version.0,
+                    version.1
+                ));
             }
         }
         if depth == 2 && name == "joint" {
@@ -389,6 +443,11 @@ pub(crate) fn scan(text: &str, path: &Path) -> Result<Scan, ArmError> {
     }
     if !saw_root {
         return Err(xml_error("no <robot> element".to_string()));
+    }
+    if skipped_warnings > 0 {
+        out.warnings.push(format!(
+            "... and {skipped_warnings} more elements or attributes URDF does not define"
+        ));
     }
     Ok(out)
 }

@@ -137,7 +137,9 @@ fn chart(
                     PathElement::new(vec![(x, y), (x + 18, y)], colour.stroke_width(2))
                 });
             }
-            if let Some(tf) = marker {
+            // A fault after the plotted span (a replayed log shorter than its scenario) is not
+            // drawn: its coordinate would lie far off the canvas.
+            if let Some(tf) = marker.filter(|tf| (0.0..=t_max).contains(tf)) {
                 chart
                     .draw_series(DashedLineSeries::new(
                         vec![(tf, $lo), (tf, $hi)],

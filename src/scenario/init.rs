@@ -124,7 +124,7 @@ fn format_number(x: f64) -> String {
 /// joint, the first link (in file order) whose name says it is the tool point (`end_effector`,
 /// `tcp`, `tool`, `flange`, in that order of preference), else the last link there in file order
 /// (a gripper's fingers come after the flange in many URDFs).
-fn default_ee(model: &ArmModel) -> String {
+pub fn default_ee(model: &ArmModel) -> String {
     if model.link("ee").is_some() {
         return "ee".into();
     }

@@ -129,43 +129,25 @@ pub enum GpSource {
 }
 
 impl RunSetup {
+    /// Checks the scenario against its arm (the URDF loaded, every setting validated, the end
+    /// effector, disturbances and faults resolved): everything [`Self::prepare`] refuses but
+    /// the GP's model file, without the GP's fit. Commands run it before staging their output.
+    pub fn check(loaded: &LoadedScenario) -> Result<(), ScenarioError> {
+        checked(loaded).map(|_| ())
+    }
+
     /// Loads the arm, validates the scenario against it, and loads or trains the GP.
     pub fn prepare(loaded: LoadedScenario) -> Result<Self, ScenarioError> {
-        let model = loaded.arm_model()?;
+        let Checked {
+            model,
+            layout,
+            ee,
+            disturbances,
+            faults,
+            actuator_faults,
+        } = checked(&loaded)?;
         let n = model.joints.len();
         let sc = &loaded.scenario;
-        let layout = ChannelLayout::new(n, sc.camera.model);
-        sc.validate(&layout, &loaded.path)?;
-        check_joint_limits(sc, &model, &loaded.path)?;
-        sc.model
-            .check_names(&model)
-            .map_err(|e| ScenarioError::Invalid {
-                path: loaded.path.clone(),
-                field: format!("model.{}", e.field),
-                message: e.message,
-            })?;
-        let ee = end_effector(&loaded, &model)?;
-        let mut disturbances = Vec::with_capacity(sc.disturbances.len());
-        for (i, d) in sc.disturbances.iter().enumerate() {
-            disturbances.push(
-                d.to_disturbance(&model)
-                    .map_err(|e| ScenarioError::Invalid {
-                        path: loaded.path.clone(),
-                        field: format!("disturbances[{i}].{}", e.field),
-                        message: e.message,
-                    })?,
-            );
-        }
-        let faults: Vec<Fault> = sc
-            .faults
-            .iter()
-            .map(|f| f.to_fault(&layout, sc.dt).expect("validated"))
-            .collect();
-        let actuator_faults = sc
-            .actuator_faults
-            .iter()
-            .map(|f| f.to_fault(n, sc.dt).expect("validated"))
-            .collect();
         let (gp, gp_source) = match &sc.gp.model {
             Some(rel) => {
                 let path = loaded.resolve(rel);
@@ -303,6 +285,62 @@ impl RunSetup {
             &sc.plant,
         )?)
     }
+}
+
+/// What [`RunSetup::check`] resolves, and [`RunSetup::prepare`] keeps.
+struct Checked {
+    model: ArmModel,
+    layout: ChannelLayout,
+    ee: EndEffector,
+    disturbances: Vec<crate::plant::Disturbance>,
+    faults: Vec<Fault>,
+    actuator_faults: Vec<crate::plant::ActuatorFault>,
+}
+
+fn checked(loaded: &LoadedScenario) -> Result<Checked, ScenarioError> {
+    let model = loaded.arm_model()?;
+    let n = model.joints.len();
+    let sc = &loaded.scenario;
+    let layout = ChannelLayout::new(n, sc.camera.model);
+    sc.validate(&layout, &loaded.path)?;
+    check_joint_limits(sc, &model, &loaded.path)?;
+    sc.model
+        .check_names(&model)
+        .map_err(|e| ScenarioError::Invalid {
+            path: loaded.path.clone(),
+            field: format!("model.{}", e.field),
+            message: e.message,
+        })?;
+    let ee = end_effector(loaded, &model)?;
+    let mut disturbances = Vec::with_capacity(sc.disturbances.len());
+    for (i, d) in sc.disturbances.iter().enumerate() {
+        disturbances.push(
+            d.to_disturbance(&model)
+                .map_err(|e| ScenarioError::Invalid {
+                    path: loaded.path.clone(),
+                    field: format!("disturbances[{i}].{}", e.field),
+                    message: e.message,
+                })?,
+        );
+    }
+    let faults: Vec<Fault> = sc
+        .faults
+        .iter()
+        .map(|f| f.to_fault(&layout, sc.dt).expect("validated"))
+        .collect();
+    let actuator_faults = sc
+        .actuator_faults
+        .iter()
+        .map(|f| f.to_fault(n, sc.dt).expect("validated"))
+        .collect();
+    Ok(Checked {
+        model,
+        layout,
+        ee,
+        disturbances,
+        faults,
+        actuator_faults,
+    })
 }
 
 /// The scenario's end effector on its arm (`robot.ee_link` and `robot.ee_offset`).

@@ -357,7 +357,13 @@ fn replay(args: ReplayArgs) -> Result<(), Failure> {
     };
     let seed = args.seed.unwrap_or(loaded.scenario.seed);
     // The files named and the output, before the GP's fit.
-    check_input_file("LOG", Some(&args.log))?;
+    if !args.log.exists() {
+        // A file or a rosbag2 folder: what is in it is read after the GP.
+        return Err(bad_input(anyhow!(
+            "LOG {}: no such file or folder",
+            args.log.display()
+        )));
+    }
     check_input_file("--calib", args.calib.as_ref())?;
     let dir = args.out.clone().unwrap_or_else(|| {
         let stem = args
@@ -656,13 +662,16 @@ fn relative_path(path: &Path, base: &Path) -> String {
     out.to_string_lossy().into_owned()
 }
 
-/// Loads the scenario (file or embedded default) with overrides.
+/// Loads the scenario (file or embedded default) with overrides and checks it against its arm
+/// (everything but the GP's model), before a command stages its output.
 fn load(args: &ScenarioArgs) -> Result<LoadedScenario, Failure> {
-    match &args.scenario {
+    let loaded = match &args.scenario {
         Some(path) => LoadedScenario::from_file(path, &args.set),
         None => LoadedScenario::embedded_default(&args.set),
     }
-    .map_err(|e| scenario_failure(e, &args.set))
+    .map_err(|e| scenario_failure(e, &args.set))?;
+    RunSetup::check(&loaded).map_err(|e| scenario_failure(e, &args.set))?;
+    Ok(loaded)
 }
 
 /// A scenario error, exit 2; when the offending key was given by `--set`, the message says so.
@@ -693,7 +702,11 @@ fn prepare_loaded(loaded: LoadedScenario, overrides: &[String]) -> Result<RunSet
 /// An input file named by a flag must exist before any work starts.
 fn check_input_file(flag: &str, path: Option<&PathBuf>) -> Result<(), Failure> {
     match path {
-        Some(p) if !p.is_file() => Err(bad_input(anyhow!("{flag} {}: no such file", p.display()))),
+        Some(p) if !p.exists() => Err(bad_input(anyhow!("{flag} {}: no such file", p.display()))),
+        Some(p) if !p.is_file() => Err(bad_input(anyhow!(
+            "{flag} {}: not a regular file",
+            p.display()
+        ))),
         _ => Ok(()),
     }
 }
@@ -1149,7 +1162,11 @@ fn check_urdf(args: CheckUrdfArgs) -> Result<(), Failure> {
         Some(ee) => say!(args.json, "end effector: {ee}"),
         None => match model.link("ee") {
             Some(_) => say!(args.json, "end effector: ee (default)"),
-            None => say!(args.json, "end effector: none named 'ee'; pass --ee LINK"),
+            None => say!(
+                args.json,
+                "end effector: none named 'ee'; `init` would put it on '{}' (pass --ee LINK to choose)",
+                aift::scenario::init::default_ee(&model)
+            ),
         },
     }
     for w in &model.warnings {
