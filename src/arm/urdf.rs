@@ -106,8 +106,8 @@ pub(crate) struct Scan {
     links_with_inertial: HashSet<String>,
     /// What the parser would pass over in silence: elements and attributes of a link or joint
     /// that URDF does not define (a typo such as `<axsi>` or `efort` changes the arm: the axis
-    /// or the effort limit takes its default), a `<limit>` without the effort or velocity
-    /// URDF requires.
+    /// or the effort limit takes its default), a `<limit>` without the effort URDF requires
+    /// before version 1.2. At most [`MAX_SCAN_WARNINGS`], then a count of the rest.
     warnings: Vec<String>,
 }
 
@@ -303,13 +303,28 @@ pub(crate) fn scan(text: &str, path: &Path) -> Result<Scan, ArmError> {
             let what = || match &owner {
                 Some((kind, n)) if depth > 2 => format!("{kind} '{n}'"),
                 _ => format!(
-                    "<{name}> '{}'",
+                    "{name} '{}'",
                     attributes
                         .iter()
                         .find(|(k, _)| k == "name")
                         .map_or("", |(_, v)| v.as_str())
                 ),
             };
+            if below == ["joint"] {
+                match attributes.iter().find(|(k, _)| k == "type") {
+                    Some((_, t)) if JOINT_TYPES.contains(&t.as_str()) => {}
+                    found => {
+                        return Err(xml_error(format!(
+                            "{} (line {line}): {}; URDF's joint types are {}",
+                            what(),
+                            found.map_or("no `type`".to_string(), |(_, t)| format!(
+                                "type `{t}` is not a joint type"
+                            )),
+                            JOINT_TYPES.join(", ")
+                        )));
+                    }
+                }
+            }
             let mut warn = |message: String| {
                 if out.warnings.len() < MAX_SCAN_WARNINGS {
                     out.warnings.push(message);
@@ -378,25 +393,6 @@ pub(crate) fn scan(text: &str, path: &Path) -> Result<Scan, ArmError> {
                 ));
             }
         }
-        if depth == 2 && name == "joint" {
-            let joint_name = attributes
-                .iter()
-                .find(|(k, _)| k == "name")
-                .map_or("", |(_, v)| v.as_str());
-            match attributes.iter().find(|(k, _)| k == "type") {
-                Some((_, t)) if JOINT_TYPES.contains(&t.as_str()) => {}
-                found => {
-                    return Err(xml_error(format!(
-                        "joint '{joint_name}' (line {}): {}; URDF's joint types are {}",
-                        line_of(text, position),
-                        found.map_or("no `type`".to_string(), |(_, t)| format!(
-                            "type `{t}` is not a joint type"
-                        )),
-                        JOINT_TYPES.join(", ")
-                    )));
-                }
-            }
-        }
         if depth == 2 {
             owner = (name == "link" || name == "joint").then(|| {
                 let own_name = attributes
@@ -445,9 +441,8 @@ pub(crate) fn scan(text: &str, path: &Path) -> Result<Scan, ArmError> {
         return Err(xml_error("no <robot> element".to_string()));
     }
     if skipped_warnings > 0 {
-        out.warnings.push(format!(
-            "... and {skipped_warnings} more elements or attributes URDF does not define"
-        ));
+        out.warnings
+            .push(format!("... and {skipped_warnings} more such warnings"));
     }
     Ok(out)
 }

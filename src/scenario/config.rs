@@ -160,6 +160,18 @@ pub struct InitialState {
     pub qd: Option<Vec<f64>>,
 }
 
+/// The target of a schedule in force at time t: the last whose time is at or before t (the
+/// first from the start, whatever its time; the runner's rule, `Simulation::decide`).
+pub fn target_in_force(targets: &[Target], t: f64) -> &[f64] {
+    let mut current = &targets[0].q;
+    for target in targets {
+        if target.time <= t + 1e-9 {
+            current = &target.q;
+        }
+    }
+    current
+}
+
 /// A set point.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
@@ -361,13 +373,7 @@ impl Scenario {
 
     /// The target in force at time t.
     pub fn target_at(&self, t: f64) -> &[f64] {
-        let mut current = &self.targets[0].q;
-        for target in &self.targets {
-            if target.time <= t + 1e-9 {
-                current = &target.q;
-            }
-        }
-        current
+        target_in_force(&self.targets, t)
     }
 
     /// Checks everything against the arm's channel layout; errors name `file` and the key.

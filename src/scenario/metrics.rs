@@ -243,10 +243,9 @@ pub struct RunMetrics {
     faulty_channels: Vec<usize>,
     faulty_joints: Vec<usize>,
     first_fault: Option<u64>,
-    /// The target schedule (time, joint positions): the final error is taken against the
-    /// target in force at the last tick run (a target scheduled after the run's end never
-    /// acts).
-    targets: Vec<(f64, Vec<f64>)>,
+    /// The target schedule: the final error is taken against the target in force at the last
+    /// tick run (a target scheduled after the run's end never acts).
+    targets: Vec<super::config::Target>,
     sq: Vec<f64>,
     sq_post: Vec<f64>,
     post_count: u64,
@@ -340,7 +339,7 @@ impl RunMetrics {
             windows,
             faulty_channels,
             faulty_joints,
-            targets: sc.targets.iter().map(|t| (t.time, t.q.clone())).collect(),
+            targets: sc.targets.clone(),
             sq: vec![0.0; n],
             sq_post: vec![0.0; n],
             post_count: 0,
@@ -381,17 +380,10 @@ impl RunMetrics {
         };
         let healthy_joints: Vec<usize> =
             (0..n).filter(|j| !self.faulty_joints.contains(j)).collect();
-        // The runner's rule (`Simulation::decide`): the last target whose time is at or before
-        // the last tick run.
         let last_tick = self.ticks_run.saturating_sub(1) as f64 * dt;
-        let final_target = self
-            .targets
-            .iter()
-            .take_while(|(time, _)| *time <= last_tick + 1e-9)
-            .last()
-            .unwrap_or(&self.targets[0]);
+        let final_target = super::config::target_in_force(&self.targets, last_tick);
         let final_error_per_joint: Vec<f64> = (0..n)
-            .map(|i| (q_final[i] - final_target.1[i]).abs())
+            .map(|i| (q_final[i] - final_target[i]).abs())
             .collect();
         let max_final_error = final_error_per_joint
             .iter()

@@ -138,14 +138,8 @@ impl RunSetup {
 
     /// Loads the arm, validates the scenario against it, and loads or trains the GP.
     pub fn prepare(loaded: LoadedScenario) -> Result<Self, ScenarioError> {
-        let Checked {
-            model,
-            layout,
-            ee,
-            disturbances,
-            faults,
-            actuator_faults,
-        } = checked(&loaded)?;
+        let checked = checked(&loaded)?;
+        let (model, layout) = (checked.model, checked.layout);
         let n = model.joints.len();
         let sc = &loaded.scenario;
         let (gp, gp_source) = match &sc.gp.model {
@@ -180,15 +174,15 @@ impl RunSetup {
                 )
             }
         };
-        let warnings = late_settings(&loaded.scenario, &faults);
+        let warnings = late_settings(&loaded.scenario, &checked.faults);
         let mut setup = Self {
             model: Arc::new(model),
-            ee,
+            ee: checked.ee,
             layout,
             gp: Arc::new(gp),
-            faults,
-            actuator_faults,
-            disturbances,
+            faults: checked.faults,
+            actuator_faults: checked.actuator_faults,
+            disturbances: checked.disturbances,
             momentum_thresholds: None,
             gp_source,
             loaded,
