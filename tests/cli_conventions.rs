@@ -1,6 +1,8 @@
 //! Conventions users expect of a command line: `--json` prints one JSON document on stdout (the
 //! file the command wrote, as written) with everything else on stderr, each document carries a
-//! `format_version`, and `aift completions SHELL` prints a completion script.
+//! `format_version`, `aift completions SHELL` prints a completion script, a command the CLI
+//! suggests can be pasted into a shell, a "wrote" line names the files written, and an option
+//! that does nothing says so.
 
 mod common;
 
@@ -215,4 +217,71 @@ fn the_schema_knows_every_key_of_every_bundled_scenario_and_refuses_others() {
     let mut unknown = Vec::new();
     unknown_keys(&schema, &schema, &bad, "", &mut unknown);
     assert_eq!(unknown, vec![".robot.solver_iteration".to_string()]);
+}
+
+/// `init` into a path with a space suggests a run command a shell splits back into that path;
+/// the run's "wrote" line names exactly the files its folder holds; `--calib` with a method
+/// that needs no detector calibration is reported as unused (a warning: the run goes on).
+#[test]
+fn suggested_commands_paste_wrote_lines_name_the_files_and_unused_options_say_so() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    std::fs::copy(common::repo("urdf/planar_2dof.urdf"), d.join("my arm.urdf")).unwrap();
+    let o = aift(
+        &[
+            "init",
+            "--urdf",
+            "my arm.urdf",
+            "--out",
+            "my arm.toml",
+            "--no-check",
+        ],
+        d,
+    );
+    let text = String::from_utf8_lossy(&o.stdout).into_owned();
+    let suggested = text
+        .split('`')
+        .nth(1)
+        .unwrap_or_else(|| panic!("no command in {text:?}"));
+    assert_eq!(
+        shlex::split(suggested).unwrap(),
+        ["aift", "run", "my arm.toml"],
+        "{text}"
+    );
+    std::fs::write(d.join("unused.json"), "{}").unwrap();
+    let o = aift(
+        &[
+            "run",
+            "my arm.toml",
+            "--method",
+            "no-ft",
+            "--set",
+            "duration=0.3",
+            "--calib",
+            "unused.json",
+            "--out",
+            "out",
+        ],
+        d,
+    );
+    let all = format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(
+        all.contains("--calib unused.json is not used") && all.contains("no-ft"),
+        "{all}"
+    );
+    let wrote = all
+        .lines()
+        .find_map(|l| l.strip_prefix("wrote out/: "))
+        .unwrap_or_else(|| panic!("no wrote line in {all}"));
+    let mut files: Vec<String> = std::fs::read_dir(d.join("out"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    files.sort();
+    assert!(files.len() >= 5, "{files:?}");
+    assert_eq!(wrote, files.join(", "));
 }

@@ -113,6 +113,15 @@ pub enum ArmError {
         "{path}: the moving body of link '{link}' has no mass (give it or a link fixed to it an <inertial>)"
     )]
     MasslessBody { path: PathBuf, link: String },
+    #[error(
+        "{path}: line {line}: `{found}` is xacro, not URDF: expand the file first (`xacro {} > arm.urdf`, with ROS's xacro or `pip install xacro`)",
+        path.display()
+    )]
+    Xacro {
+        path: PathBuf,
+        line: usize,
+        found: String,
+    },
     #[error("{path}: no movable joint (revolute, continuous or prismatic): nothing to control")]
     NoMovableJoint { path: PathBuf },
     #[error("gen-arm: {message}")]
@@ -150,6 +159,7 @@ impl ArmError {
             | Self::BadLimit { path, .. }
             | Self::UnsupportedJoint { path, .. }
             | Self::MasslessBody { path, .. }
+            | Self::Xacro { path, .. }
             | Self::NoMovableJoint { path }
             | Self::UnknownEndEffector { path, .. } => path,
         }

@@ -83,6 +83,13 @@ pub fn parse_urdf_with(
             path: path.to_path_buf(),
         });
     }
+    if let Some((line, found)) = xacro_markup(text) {
+        return Err(ArmError::Xacro {
+            path: path.to_path_buf(),
+            line,
+            found,
+        });
+    }
     let scanned = scan(text, path)?;
     // urdf-rs is not known to panic once the depth is bounded; a panic is still turned into an
     // error rather than trusted never to happen.
@@ -97,6 +104,36 @@ pub fn parse_urdf_with(
         message: e.to_string(),
     })?;
     build_model(&robot, &scanned, path, options)
+}
+
+/// The first piece of xacro markup in `text` (an `<xacro:...>` element, a `${...}` expression
+/// or a `$(...)` substitution) with its line: a xacro template is not a URDF until expanded,
+/// and read as one its macros vanish in silence (no joint, or numbers that do not parse).
+fn xacro_markup(text: &str) -> Option<(usize, String)> {
+    // Outside comments: an expanded URDF often names its xacro source, `$(find ...)` and all,
+    // in a comment at the top.
+    let mut from = 0;
+    let pos = loop {
+        let rest = &text[from..];
+        let next = ["<xacro:", "${", "$("]
+            .iter()
+            .filter_map(|m| rest.find(m))
+            .min()?;
+        match rest.find("<!--") {
+            Some(c) if c < next => match rest[c..].find("-->") {
+                Some(end) => from += c + end + 3,
+                None => return None,
+            },
+            _ => break from + next,
+        }
+    };
+    let line = text[..pos].matches('\n').count() + 1;
+    let found: String = text[pos..]
+        .chars()
+        .take_while(|c| !c.is_whitespace() && *c != '>')
+        .take(40)
+        .collect();
+    Some((line, found))
 }
 
 /// What the streaming pass learned beyond the numbers it checked.

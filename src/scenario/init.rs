@@ -43,8 +43,8 @@
 //!   (a generated arm whose first joint turns about that axis hid all 200 behind its first link).
 //! - GP: 100 points per joint plus 100, at most 600, over the box of start and targets widened by
 //!   0.3 rad (the default margin).
-//! - The state prior's acceleration bound: 200 rad/s^2, or the largest acceleration the gains ask
-//!   for at a target step (kp_i 0.3 rad / m_i) when that is larger.
+//! - The state prior's acceleration bound: the default 200 rad/s^2, whatever the gains (its
+//!   position prior must stay above the encoders' precision; docs/method.md, "Prior scale").
 
 use std::path::Path;
 
@@ -427,7 +427,6 @@ fn gains_from_dynamics(model: &Arc<ArmModel>, poses: &Poses) -> Gains {
     }
     let (mut kp, mut kd, mut ki, mut ilim) =
         (vec![0.0; n], vec![0.0; n], vec![0.0; n], vec![0.0; n]);
-    let mut accel = 0.0f64;
     for (i, j) in model.joints.iter().enumerate() {
         let m = m_max[i].max(1e-6);
         let d = j.damping;
@@ -461,8 +460,6 @@ fn gains_from_dynamics(model: &Arc<ArmModel>, poses: &Poses) -> Gains {
         // cannot reach G + F leaves it stuck up to (G + F - I_max) / kp off its target.
         let limit = (1.5 * (g_max[i] + j.friction)).max(1.0);
         ilim[i] = j.effort.map_or(limit, |e| limit.min(e));
-        // The joint alone answers a step with its own inertia.
-        accel = accel.max(kp[i] * STEP / m_diag[i].max(1e-6));
     }
     // The coupled modes: lambda_max(M^-1 Kd) = lambda_max(Kd^1/2 M^-1 Kd^1/2) at every pose.
     // Where the fastest exceeds its per-tick limit, the joints in it give up damping in
@@ -503,7 +500,10 @@ fn gains_from_dynamics(model: &Arc<ArmModel>, poses: &Poses) -> Gains {
         let f = DAMPING_PER_TICK / (value * DT);
         kd.iter_mut().for_each(|k| *k *= f);
     }
-    let acceleration_bound = accel.max(crate::estimation::uaic::DEFAULT_ACCELERATION_BOUND);
+    // The prior's bound does not grow with the gains: it sets the position prior P_mu = 1 / (a
+    // dt^2 / 2)^2, which must stay well above the encoders' precision (docs/method.md, "Prior
+    // scale"); the tachometers, not the prior, carry a fast joint's velocity.
+    let acceleration_bound = crate::estimation::uaic::DEFAULT_ACCELERATION_BOUND;
     Gains {
         kp,
         kd,
@@ -798,8 +798,10 @@ fn render(scenario: &Scenario, notes: &Notes<'_>) -> String {
         &mut doc,
         "belief",
         format!(
-            "# The state prior treats {:.0} rad/s^2 as one standard deviation of acceleration: the default\n\
-             # 200, or the largest acceleration these gains ask for at a target step when larger.\n",
+            "# The state prior treats {:.0} rad/s^2 as one standard deviation of acceleration (the\n\
+             # default): its position prior 1 / (a dt^2 / 2)^2 = 1e8 stays 100 x the encoders' precision,\n\
+             # so that an encoder the belief stops trusting leaves its joint to the integrated\n\
+             # tachometer, not free (docs/method.md, \"Prior scale\").\n",
             scenario.belief.acceleration_bound
         ),
     );

@@ -563,7 +563,7 @@ fn gen_arm(args: GenArmArgs) -> Result<(), Failure> {
         "wrote {} (seed {}); next: `aift init --urdf {} --out SCENARIO.toml`",
         out.display(),
         args.seed,
-        out.display()
+        shell_quoted(&out)
     );
     Ok(())
 }
@@ -639,9 +639,18 @@ fn init(args: InitArgs) -> Result<(), Failure> {
         "wrote {} for {}; run it with `aift run {}`",
         args.out.display(),
         args.urdf.display(),
-        args.out.display()
+        shell_quoted(&args.out)
     );
     Ok(())
+}
+
+/// `path` as one shell word, for a command the user can paste (a path with spaces or quotes is
+/// quoted; a path a shell cannot take, with a NUL, is shown as it is).
+fn shell_quoted(path: &Path) -> String {
+    let text = path.to_string_lossy();
+    shlex::try_quote(&text)
+        .map(|q| q.into_owned())
+        .unwrap_or_else(|_| text.into_owned())
 }
 
 /// `path` relative to `base` where both resolve; else `path` made absolute.
@@ -729,6 +738,17 @@ fn calibration_for(
     for &m in methods {
         setup.check_method(m).map_err(bad_input)?;
     }
+    if let Some(path) = calib
+        && !methods.iter().any(|m| m.needs_detector())
+    {
+        let names: Vec<String> = methods.iter().map(|m| m.to_string()).collect();
+        errln!(
+            "warning: --calib {} is not used: {} {} no detector calibration",
+            path.display(),
+            names.join(", "),
+            if names.len() == 1 { "needs" } else { "need" }
+        );
+    }
     let dir = cache_dir();
     let found =
         calibrate::calibration_for(setup, methods, calib.map(PathBuf::as_path), dir.as_deref())
@@ -758,6 +778,21 @@ fn describe_gp(setup: &RunSetup) -> String {
         }
         scenario::GpSource::Loaded(path) => format!("loaded from {}", path.display()),
     }
+}
+
+/// The files a finished output folder holds, sorted, for the "wrote" line (read back, so the
+/// line names what is there: the report, the GP model and the arm's URDF too).
+fn folder_listing(dir: &Path) -> String {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .map(|entries| {
+            entries
+                .filter_map(|e| e.ok())
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .collect()
+        })
+        .unwrap_or_default();
+    names.sort();
+    names.join(", ")
 }
 
 fn run(args: RunArgs) -> Result<(), Failure> {
@@ -795,20 +830,9 @@ fn run(args: RunArgs) -> Result<(), Failure> {
     print_run_result(args.json, &setup, &result);
     say!(
         args.json,
-        "wrote {}/: {}{}, {}, {}, plots {}, {}, {}, {}",
+        "wrote {}/: {}",
         dir.display(),
-        run_files::TRAJECTORY,
-        if args.mcap {
-            format!(", {}", aift::logs::RUN_MCAP)
-        } else {
-            String::new()
-        },
-        run_files::SUMMARY,
-        run_files::RESOLVED,
-        run_files::PLOT_JOINTS,
-        run_files::PLOT_HEALTH,
-        run_files::PLOT_DETECTOR,
-        run_files::PLOT_FREE_ENERGY
+        folder_listing(&dir)
     );
     if args.json {
         print_json_file(&dir.join(run_files::SUMMARY))?;
