@@ -127,7 +127,7 @@ fn xacro_markup(text: &str) -> Option<(usize, String)> {
             _ => break from + next,
         }
     };
-    let line = text[..pos].matches('\n').count() + 1;
+    let line = line_of(text, pos);
     let found: String = text[pos..]
         .chars()
         .take_while(|c| !c.is_whitespace() && *c != '>')

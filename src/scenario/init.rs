@@ -380,8 +380,8 @@ fn start_and_targets(model: &ArmModel) -> Poses {
     Poses { q0, t1, t2, notes }
 }
 
-/// The PID gains, integral limits and state prior's acceleration bound, with the largest row sum
-/// of |M| and gravity torque per joint they were derived from.
+/// The PID gains and integral limits, with the largest row sum of |M| and gravity torque per
+/// joint they were derived from.
 struct Gains {
     kp: Vec<f64>,
     kd: Vec<f64>,
@@ -389,7 +389,6 @@ struct Gains {
     ilim: Vec<f64>,
     m_max: Vec<f64>,
     g_max: Vec<f64>,
-    acceleration_bound: f64,
 }
 
 /// Gains from the arm's dynamics at the start and the targets (gravity along -z, the scenario's
@@ -500,10 +499,6 @@ fn gains_from_dynamics(model: &Arc<ArmModel>, poses: &Poses) -> Gains {
         let f = DAMPING_PER_TICK / (value * DT);
         kd.iter_mut().for_each(|k| *k *= f);
     }
-    // The prior's bound does not grow with the gains: it sets the position prior P_mu = 1 / (a
-    // dt^2 / 2)^2, which must stay well above the encoders' precision (docs/method.md, "Prior
-    // scale"); the tachometers, not the prior, carry a fast joint's velocity.
-    let acceleration_bound = crate::estimation::uaic::DEFAULT_ACCELERATION_BOUND;
     Gains {
         kp,
         kd,
@@ -511,7 +506,6 @@ fn gains_from_dynamics(model: &Arc<ArmModel>, poses: &Poses) -> Gains {
         ilim,
         m_max,
         g_max,
-        acceleration_bound,
     }
 }
 
@@ -665,10 +659,10 @@ fn scenario_value(
             points: gp_points,
             ..GpConfig::default()
         },
-        belief: UaicConfig {
-            acceleration_bound: round4(gains.acceleration_bound),
-            ..UaicConfig::default()
-        },
+        // The prior's bound does not grow with the gains: it sets the position prior P_mu = 1 /
+        // (a dt^2 / 2)^2, which must stay well above the encoders' precision (docs/method.md,
+        // "Prior scale"); the tachometers, not the prior, carry a fast joint's velocity.
+        belief: UaicConfig::default(),
         controller: ControlConfig {
             gains: PidGains::diagonal(
                 rounded(&gains.kp),
