@@ -209,4 +209,25 @@ fn journals_of_other_runs_are_replaced_and_the_flags_do_what_they_say() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!err.contains("already done"), "{err}");
     assert!(!dir.join(".b.aift-journal").exists());
+    // A journal another build wrote (its source digest in the header) is never resumed: the
+    // version stays the same between commits, the code does not.
+    assert!(interrupt(dir, "c", &[], 5, "-KILL"));
+    let journal = dir.join(".c.aift-journal");
+    let text = std::fs::read_to_string(&journal).unwrap();
+    let (header, rest) = text.split_once('\n').unwrap();
+    let mut header: serde_json::Value = serde_json::from_str(header).unwrap();
+    let ours = header["build"].as_str().unwrap().to_string();
+    assert_eq!(ours.len(), 16, "{header}");
+    header["build"] = serde_json::Value::from("0123456789abcdef");
+    std::fs::write(&journal, format!("{header}\n{rest}")).unwrap();
+    let o = common::aift_in(&["campaign", "c.toml", "--out", "c", "--resume"], dir);
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("another build of aift"), "{err}");
+    let o = common::aift_ok(&["campaign", "c.toml", "--out", "c"], dir);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("starting afresh") && err.contains(&ours) && !err.contains("already done"),
+        "{err}"
+    );
 }

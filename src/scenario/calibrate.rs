@@ -154,8 +154,9 @@ pub fn cached_calibration(
 ) -> Result<(Calibration, bool), ScenarioError> {
     let file = cache_dir.map(|dir| {
         dir.join(format!(
-            "calibration-{}-{}runs-pool{}.json",
+            "calibration-{}-{}-{}runs-pool{}.json",
             fingerprint(setup),
+            crate::SOURCE_DIGEST,
             runs,
             setup.scenario().detector.pool_ticks
         ))

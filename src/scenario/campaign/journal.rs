@@ -3,12 +3,14 @@
 //! the jobs it had not finished (docs/campaigns.md, "Resuming").
 //!
 //! The journal is a JSON Lines file: a header naming the campaign (fingerprint, configuration
-//! digest, shard, aift version), then one line per finished job with its records in full
+//! digest, shard, aift version and build), then one line per finished job with its records in full
 //! precision and the seconds it took. Lines are appended and flushed as jobs finish and synced
 //! to disk at most once a second, so a killed process loses at most the job it was writing and a
 //! lost machine at most the last second. A torn last line is dropped; a header that does not
-//! match the campaign as run now (another configuration, overrides, shard or version) starts
-//! the journal afresh. A job's records are the same whether computed now or read back (serde's
+//! match the campaign as run now (another configuration, overrides, shard, version or build) starts
+//! the journal afresh. The version alone does not tell builds apart (it stays the same between
+//! commits): the header carries the build's source digest ([`crate::SOURCE_DIGEST`]), so that a
+//! campaign rerun after a rebuild never mixes the jobs of two builds. A job's records are the same whether computed now or read back (serde's
 //! shortest round-trip floats), so a resumed campaign writes the same bytes as an uninterrupted
 //! one.
 
@@ -35,6 +37,8 @@ pub const MAX_JOURNAL_BYTES: u64 = crate::fsio::MAX_CALIBRATION_BYTES;
 struct Header {
     aift_campaign_journal: u32,
     aift_version: String,
+    /// [`crate::SOURCE_DIGEST`] of the build that wrote it.
+    build: String,
     campaign: String,
     fingerprint: String,
     config_digest: String,
@@ -117,6 +121,7 @@ impl Journal {
         let header = Header {
             aift_campaign_journal: JOURNAL_FORMAT,
             aift_version: env!("CARGO_PKG_VERSION").into(),
+            build: crate::SOURCE_DIGEST.into(),
             campaign: campaign.config.name.clone(),
             fingerprint: campaign.fingerprint.clone(),
             config_digest: super::config_digest(&campaign.config),
@@ -283,6 +288,11 @@ fn read_entries(
     if found != *header {
         return Err(if found.aift_version != header.aift_version {
             format!("written by aift {}", found.aift_version)
+        } else if found.build != header.build {
+            format!(
+                "written by another build of aift (source digest {}; this one {})",
+                found.build, header.build
+            )
         } else if found.shard != header.shard {
             format!("of shard {}/{}", found.shard.index, found.shard.count)
         } else {
