@@ -334,6 +334,59 @@ impl Dynamics {
         solved
     }
 
+    /// The regressors of each joint's inertial torque error when every body's centre of mass is
+    /// off by an isotropic error of standard deviation `sigma[b]` per axis (m), under the joint
+    /// accelerations `qdd`, at the configuration last set (docs/method.md, "Model error"). Per
+    /// joint j and body b it moves, the torque s_j . I_b A_b (A_b = sum of s_k qdd_k over b's
+    /// joints) is m_b u_j . w with u_j = v_j + omega_j x c the centre of mass' velocity under
+    /// joint j and w = a + alpha x c its acceleration; under c -> c + d it changes by m_b d .
+    /// (w x omega_j + u_j x alpha) to first order and by m_b (omega_j x d) . (alpha x d) to
+    /// second, whose root mean square for a d across the axis is sqrt(8) m_b sigma^2 |omega_j|
+    /// |alpha| (the parallel-axis inertia a centre-of-mass error adds about an axis the body's
+    /// centre lies on, which the first order misses). Into `grad[j * bodies + b]`: m_b sigma_b
+    /// (w x omega_j + u_j x alpha) and sqrt(8) m_b sigma_b^2 |omega_j| alpha, zero for bodies
+    /// joint j does not move; the torque error's variance is the sum of their squared norms
+    /// over b, its covariance with another state's the sum of their dot products. Without
+    /// allocating.
+    pub fn centre_of_mass_regressors(
+        &self,
+        qdd: &[f64],
+        sigma: &[f64],
+        grad: &mut [[Vector3<f64>; 2]],
+    ) {
+        let nb = self.model.bodies.len();
+        grad.iter_mut()
+            .for_each(|g| *g = [Vector3::zeros(), Vector3::zeros()]);
+        let joints = &self.model.joints;
+        for (b, body) in self.model.bodies.iter().enumerate().skip(1) {
+            let (m, sg) = (body.mass, sigma[b]);
+            if m <= 0.0 || sg <= 0.0 {
+                continue;
+            }
+            // The body's spatial acceleration from qdd (velocity products left out).
+            let mut acc = Vector6::zeros();
+            let mut at = b;
+            while let Some(k) = self.parent_joint[at] {
+                acc += self.s[k] * qdd[k];
+                at = joints[k].parent_body;
+            }
+            let alpha = Vector3::new(acc[0], acc[1], acc[2]);
+            let c = self.poses[b].translation.vector + self.poses[b].rotation * body.com;
+            let w = Vector3::new(acc[3], acc[4], acc[5]) + alpha.cross(&c);
+            let mut at = b;
+            while let Some(j) = self.parent_joint[at] {
+                let s = &self.s[j];
+                let omega = Vector3::new(s[0], s[1], s[2]);
+                let u = Vector3::new(s[3], s[4], s[5]) + omega.cross(&c);
+                grad[j * nb + b] = [
+                    (w.cross(&omega) + u.cross(&alpha)) * (m * sg),
+                    alpha * (8f64.sqrt() * m * sg * sg * omega.norm()),
+                ];
+                at = joints[j].parent_body;
+            }
+        }
+    }
+
     /// Solves A x = b in place with the factor of the last successful solve, without allocating
     /// or factoring again: A = M after [`Self::forward_dynamics`], M + h D_eff after
     /// [`Self::forward_dynamics_implicit`].
@@ -563,5 +616,111 @@ mod tests {
                 bias[i]
             );
         }
+    }
+
+    /// The centre-of-mass regressors on the Panda against the mass matrix itself: the first
+    /// order is the central finite difference of (M qdd)_j in the body's centre of mass (each
+    /// axis of the body frame, a world direction R e_k), the second order is half the second
+    /// difference, m (omega_j x d) . (alpha x d); and for a joint whose axis is parallel to the
+    /// body's angular acceleration, a Monte Carlo of that term over isotropic d has the root
+    /// mean square the second regressor's norm claims (sqrt(8) m sigma^2 |alpha|).
+    #[test]
+    fn centre_of_mass_regressors_match_finite_differences_of_the_mass_matrix() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("urdf/panda_7dof.urdf");
+        let truth = crate::arm::load_urdf(&path).unwrap();
+        let q = [0.3, -0.5, 0.2, -1.9, 0.4, 1.6, -0.7];
+        let qdd = [40.0, -25.0, 60.0, 15.0, -80.0, 30.0, 120.0];
+        let (n, nb) = (7, truth.bodies.len());
+        let sigma: Vec<f64> = (0..nb).map(|b| if b == 0 { 0.0 } else { 0.01 }).collect();
+        let torque_at = |model: &ArmModel| -> Vec<f64> {
+            let mut d = Dynamics::new(Arc::new(model.clone()), [0.0; 3]);
+            d.set_configuration(&q);
+            d.compute(&[0.0; 7]);
+            let m = d.mass_matrix();
+            (0..n)
+                .map(|j| (0..n).map(|k| m[(j, k)] * qdd[k]).sum())
+                .collect()
+        };
+        let mut d = Dynamics::new(Arc::new(truth.clone()), [0.0; 3]);
+        d.set_configuration(&q);
+        let mut grad = vec![[Vector3::zeros(), Vector3::zeros()]; n * nb];
+        d.centre_of_mass_regressors(&qdd, &sigma, &mut grad);
+        let base = torque_at(&truth);
+        let h = 1e-4;
+        let mut checked = 0;
+        for b in 1..nb {
+            let rotation = d.poses()[b].rotation;
+            for k in 0..3 {
+                let shifted = |step: f64| {
+                    let mut m = truth.clone();
+                    m.bodies[b].com[k] += step;
+                    torque_at(&m)
+                };
+                let (plus, minus) = (shifted(h), shifted(-h));
+                let mut e = Vector3::zeros();
+                e[k] = 1.0;
+                let dir = rotation * e;
+                for j in 0..n {
+                    let first = (plus[j] - minus[j]) / (2.0 * h);
+                    let second = (plus[j] + minus[j] - 2.0 * base[j]) / (h * h) / 2.0;
+                    let [g, _] = grad[j * nb + b];
+                    let want_first = g.dot(&dir) / sigma[b];
+                    let scale = 1e-6 * (1.0 + want_first.abs() + first.abs());
+                    assert!(
+                        (first - want_first).abs() < scale,
+                        "body {b} axis {k} joint {j}: {first} against {want_first}"
+                    );
+                    // m (omega_j x d) . (alpha x d) for a body joint j moves (else 0).
+                    let moved = grad[j * nb + b][0] != Vector3::zeros()
+                        || grad[j * nb + b][1] != Vector3::zeros();
+                    let want_second = if moved {
+                        let s = d.s[j];
+                        let omega = Vector3::new(s[0], s[1], s[2]);
+                        let mut alpha = Vector3::zeros();
+                        let mut at = b;
+                        while let Some(i) = d.parent_joint[at] {
+                            alpha += Vector3::new(d.s[i][0], d.s[i][1], d.s[i][2]) * qdd[i];
+                            at = truth.joints[i].parent_body;
+                        }
+                        truth.bodies[b].mass * omega.cross(&dir).dot(&alpha.cross(&dir))
+                    } else {
+                        0.0
+                    };
+                    assert!(
+                        (second - want_second).abs() < 1e-3 * (1.0 + want_second.abs()),
+                        "body {b} axis {k} joint {j}: second order {second} against {want_second}"
+                    );
+                    checked += 1;
+                }
+            }
+        }
+        assert_eq!(checked, (nb - 1) * 3 * n);
+        // Joint 1 alone moving: alpha is along its axis, and the second-order term's root mean
+        // square over isotropic d is the second regressor's norm.
+        let only = [50.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+        d.centre_of_mass_regressors(&only, &sigma, &mut grad);
+        let s = d.s[0];
+        let omega = Vector3::new(s[0], s[1], s[2]);
+        let alpha = omega * 50.0;
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, StandardNormal};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let (b, samples) = (3, 200_000);
+        let m = truth.bodies[b].mass;
+        let mut sum = 0.0;
+        for _ in 0..samples {
+            let z = Vector3::from_fn(|_, _| {
+                let v: f64 = StandardNormal.sample(&mut rng);
+                v * sigma[b]
+            });
+            let x = m * omega.cross(&z).dot(&alpha.cross(&z));
+            sum += x * x;
+        }
+        let rms = (sum / samples as f64).sqrt();
+        let claimed = grad[b][1].norm();
+        assert!(
+            (rms / claimed - 1.0).abs() < 0.02,
+            "Monte Carlo {rms} against {claimed}"
+        );
     }
 }

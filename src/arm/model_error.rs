@@ -103,6 +103,37 @@ pub struct ModelConfig {
     /// or `explicit` (the acceleration at the tick's start, the default until 2026-12-04;
     /// measured in docs/method.md, "Model error").
     pub step: PredictionStep,
+    /// How a model-based estimator budgets the inertial part of its model error and, carrying
+    /// it as a state (the hybrid's bank), moves it from tick to tick (docs/method.md, "Model
+    /// error as a state"): `shared-cosine` (the default) or `per-joint` (each joint's own
+    /// regressors, with the inertia a centre-of-mass error adds about a joint's axis; opt-in
+    /// while it is screened). Written only when not the default, so that the
+    /// fingerprints of scenarios that do not set it stay as they were.
+    #[serde(skip_serializing_if = "InertialBudget::is_default")]
+    pub inertial_budget: InertialBudget,
+}
+
+/// How a model's inertial error is budgeted and carried from tick to tick (`model.inertial_budget`).
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema,
+)]
+#[serde(rename_all = "kebab-case")]
+pub enum InertialBudget {
+    /// The inertial torque error u (M qdd)_j per joint (u the larger of the mass and inertia
+    /// sizes), carried by one cosine of the model's acceleration vectors then and now for every
+    /// joint.
+    #[default]
+    SharedCosine,
+    /// The same torque error plus the centres of mass' (their gradients and the parallel-axis
+    /// inertia a centre-of-mass error adds about an axis), each joint's carried by its own
+    /// regressors' covariance then and now.
+    PerJoint,
+}
+
+impl InertialBudget {
+    fn is_default(&self) -> bool {
+        *self == Self::default()
+    }
 }
 
 /// How a model-based estimator predicts one tick from the model.
@@ -134,6 +165,7 @@ impl Default for ModelConfig {
             acceleration_noise: 2.0,
             relative_error: 0.1,
             step: PredictionStep::Implicit,
+            inertial_budget: InertialBudget::SharedCosine,
         }
     }
 }
@@ -148,6 +180,8 @@ pub struct ModelUncertainty {
     pub com: f64,
     pub damping: f64,
     pub friction: f64,
+    /// How the inertial part is budgeted and carried.
+    pub inertial_budget: InertialBudget,
 }
 
 impl ModelUncertainty {
@@ -406,6 +440,7 @@ impl ModelConfig {
                 com: self.com,
                 damping: self.damping,
                 friction: self.friction,
+                inertial_budget: self.inertial_budget,
             }
         } else {
             ModelUncertainty::default()

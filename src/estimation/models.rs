@@ -16,7 +16,7 @@
 
 use std::sync::Arc;
 
-use crate::arm::model_error::{ModelUncertainty, length_scale};
+use crate::arm::model_error::{InertialBudget, ModelUncertainty, length_scale};
 use crate::arm::{ArmModel, Dynamics};
 use crate::gp::GpModel;
 use crate::sensors::ChannelLayout;
@@ -104,6 +104,21 @@ pub struct ArmTransition {
     /// Per joint, the gravity-torque error (N m, one standard deviation) of the centres of mass
     /// beyond it: g sqrt(sum_b (com m_b L_b)^2).
     com_torque: Vec<f64>,
+    /// Per body, the centre of mass' error per axis (m, one standard deviation): com x its
+    /// length scale; and scratch for each joint's inertial torque variance from it.
+    com_sigma: Vec<f64>,
+    /// Per joint and body, the centre-of-mass error's torque regressors
+    /// ([`Dynamics::centre_of_mass_regressors`]) now and at the last evaluation.
+    com_grad: Vec<[nalgebra::Vector3<f64>; 2]>,
+    last_com_grad: Vec<[nalgebra::Vector3<f64>; 2]>,
+    /// Per joint, the inertial torque error's own regressor u (M qdd)_j (signed) now and at the
+    /// last evaluation; the columns of the step's inverse matrix now and then (column j at j n).
+    regressor: Vec<f64>,
+    last_regressor: Vec<f64>,
+    columns: Vec<f64>,
+    last_columns: Vec<f64>,
+    /// Scratch: per joint, the inertial part's covariance between the last state and this one.
+    torque_step_cov: Vec<f64>,
     /// Scratch: each joint's torque error and a column of M^-1.
     torque_error: Vec<f64>,
     column: Vec<f64>,
@@ -120,7 +135,7 @@ pub struct ArmTransition {
     torque_step: Vec<f64>,
     step_var: Vec<f64>,
     /// Per joint, the factor the model error is carried by ([`CorrelatedError::carry`]); the
-    /// last evaluation's acceleration, inertial and other variances of the budget (rad/s^2)^2;
+    /// last evaluation's inertial and other variances of the budget (rad/s^2)^2;
     /// the inertial torque variance (scratch); and the lead filter's model-error estimate.
     carry: Vec<f64>,
     last_acceleration: Vec<f64>,
@@ -151,7 +166,7 @@ impl ArmTransition {
         relative: f64,
         fallback: f64,
     ) -> Self {
-        let n = model.joints.len();
+        let (n, nb) = (model.joints.len(), model.bodies.len());
         Self {
             dynamics: Dynamics::new(model, gravity),
             floor,
@@ -162,6 +177,14 @@ impl ArmTransition {
             uncertainty: ModelUncertainty::default(),
             acceleration_var: vec![0.0; n],
             com_torque: vec![0.0; n],
+            com_sigma: vec![0.0; nb],
+            com_grad: vec![[nalgebra::Vector3::zeros(); 2]; n * nb],
+            last_com_grad: vec![[nalgebra::Vector3::zeros(); 2]; n * nb],
+            regressor: vec![0.0; n],
+            last_regressor: vec![0.0; n],
+            columns: vec![0.0; n * n],
+            last_columns: vec![0.0; n * n],
+            torque_step_cov: vec![0.0; n],
             torque_error: vec![0.0; n],
             column: vec![0.0; n],
             implicit_step: 0.0,
@@ -205,6 +228,15 @@ impl ArmTransition {
             }
         }
         self.com_torque = sums.into_iter().map(f64::sqrt).collect();
+        self.com_sigma = (0..model.bodies.len())
+            .map(|b| {
+                if b == 0 {
+                    0.0
+                } else {
+                    uncertainty.com * length_scale(&model, b)
+                }
+            })
+            .collect();
         self.uncertainty = uncertainty;
         self
     }
@@ -213,13 +245,16 @@ impl ArmTransition {
     /// evaluated, into `noise` as a lower bound; and how the model error a filter carries as a
     /// state moves since the last evaluation (the first evaluation: all of it, from 0), into
     /// `carry` and `step` (docs/method.md, "Model error as a state"). Per joint i, the error is
-    /// an inertial part W_i . qdd (W_i an unknown row, isotropic, qdd the model's acceleration
-    /// vector) with prior variance A (the budget's inertial term through M^-1), and the rest b
-    /// (mass bias, centre of mass, damping, friction: variance B), whose parameter errors are
-    /// fixed, so it moves only as its regressors do (u_k (r_k - r_k,last), the friction ramp
-    /// by all of its change, the centre-of-mass bound not at all: variance D). With A' the
-    /// inertial variance at the new state and C = cos(qdd_last, qdd) sqrt(A A'), the error's
-    /// conditional given its last value e is
+    /// an inertial part sum_j M^-1_ij dtau_j, each joint's inertial torque error dtau_j linear
+    /// in fixed parameter errors with regressors that move with the state (u (M qdd)_j for the
+    /// mass and inertia, the centres of mass' gradients of [`Dynamics::centre_of_mass_regressors`]),
+    /// with prior variance A (the budget's inertial terms through M^-1), and the rest b (mass
+    /// bias, centre of mass' gravity torque, damping, friction: variance B), whose parameter
+    /// errors are fixed, so it moves only as its regressors do (u_k (r_k - r_k,last), the
+    /// friction ramp by all of its change, the centre-of-mass bound not at all: variance D).
+    /// With A' the inertial variance at the new state and C = sum_j M^-1_ij M'^-1_ij
+    /// Cov(dtau_j, dtau'_j) (the regressors' products, then and now), the error's conditional
+    /// given its last value e is
     ///   E[e' | e] = (C + B) / (A + B) e,
     ///   Var[e' | e] = kappa (A' + B + D - (C + B)^2 / (A + B)),
     /// kappa = max(1, e^2 / (A + B)) with e the lead filter's estimate: a learned error larger
@@ -228,6 +263,15 @@ impl ArmTransition {
         let u = self.uncertainty;
         let model = self.dynamics.model().clone();
         let mut inertial_torque = std::mem::take(&mut self.inertial_torque);
+        let per_joint = u.inertial_budget == InertialBudget::PerJoint;
+        if per_joint {
+            self.dynamics.centre_of_mass_regressors(
+                &self.acceleration,
+                &self.com_sigma,
+                &mut self.com_grad,
+            );
+        }
+        let nb = model.bodies.len();
         for (j, joint) in model.joints.iter().enumerate() {
             // The inertial torque M qdd the model predicts is off by its mass error too.
             let inertial = torques[j] - self.dynamics.bias()[j] - joint.damping * qd[j];
@@ -238,8 +282,17 @@ impl ArmTransition {
                 u.damping * joint.damping * qd[j],
                 u.friction * joint.friction,
             ];
-            self.torque_error[j] = terms.iter().map(|t| t * t).sum::<f64>();
-            inertial_torque[j] = terms[0] * terms[0];
+            let com_var: f64 = if per_joint {
+                self.com_grad[j * nb..(j + 1) * nb]
+                    .iter()
+                    .map(|[g, h]| g.norm_squared() + h.norm_squared())
+                    .sum()
+            } else {
+                0.0
+            };
+            self.torque_error[j] = terms.iter().map(|t| t * t).sum::<f64>() + com_var;
+            inertial_torque[j] = terms[0] * terms[0] + com_var;
+            self.regressor[j] = terms[0];
             // The friction the model applied over the tick (the ramp at the tick's end velocity,
             // saturated, as the implicit step takes it): where the model's friction moves (a
             // joint it sees reverse, stick or slip) the truth need not, so the error moves by
@@ -294,6 +347,7 @@ impl ArmTransition {
             self.column.fill(0.0);
             self.column[j] = 1.0;
             self.dynamics.solve_factored(&mut self.column);
+            self.columns[j * n..(j + 1) * n].copy_from_slice(&self.column);
             for (k, m) in self.column.iter().enumerate() {
                 let m2 = m * m;
                 var[k] += m2 * self.torque_error[j];
@@ -313,19 +367,42 @@ impl ArmTransition {
             }
         }
         self.inertial_torque = inertial_torque;
-        // The inertial part's correlation between the last state and this one: the cosine of
-        // the model's acceleration vectors (W isotropic).
-        let (mut aa, mut ab, mut bb) = (0.0, 0.0, 0.0);
-        for (a, b) in self.last_acceleration.iter().zip(&self.acceleration) {
-            aa += a * a;
-            ab += a * b;
-            bb += b * b;
+        // The inertial part's covariance between the last state and this one, joint by joint:
+        // Cov(e_i, e'_i) = sum_j M^-1_ij M'^-1_ij Cov(tau_j, tau'_j), the torque errors'
+        // covariance from their regressors (the joint's own inertial torque, the centres of
+        // mass' gradients).
+        let mut covariance = std::mem::take(&mut self.torque_step_cov);
+        covariance.iter_mut().for_each(|v| *v = 0.0);
+        if !per_joint {
+            // `shared-cosine`: C = cos(qdd_last, qdd) sqrt(A A') for every joint (an inertial
+            // part W_i . qdd with W_i isotropic).
+            let (mut aa, mut ab, mut bb) = (0.0, 0.0, 0.0);
+            for (a, b) in self.last_acceleration.iter().zip(&self.acceleration) {
+                aa += a * a;
+                ab += a * b;
+                bb += b * b;
+            }
+            let cos = if aa > 0.0 && bb > 0.0 {
+                (ab / (aa * bb).sqrt()).clamp(-1.0, 1.0)
+            } else {
+                0.0
+            };
+            for (i, c) in covariance.iter_mut().enumerate() {
+                *c = cos * (self.last_inertial_var[i] * inertial_var[i]).sqrt();
+            }
         }
-        let cos = if aa > 0.0 && bb > 0.0 {
-            (ab / (aa * bb).sqrt()).clamp(-1.0, 1.0)
-        } else {
-            0.0
-        };
+        for j in (0..n).filter(|_| per_joint) {
+            let mut cov = self.regressor[j] * self.last_regressor[j];
+            for (now, last) in self.com_grad[j * nb..(j + 1) * nb]
+                .iter()
+                .zip(&self.last_com_grad[j * nb..(j + 1) * nb])
+            {
+                cov += now[0].dot(&last[0]) + now[1].dot(&last[1]);
+            }
+            for (i, c) in covariance.iter_mut().enumerate() {
+                *c += self.columns[j * n + i] * self.last_columns[j * n + i] * cov;
+            }
+        }
         for i in 0..n {
             let (a_new, total) = (inertial_var[i], var[i]);
             let b_new = total - a_new;
@@ -335,7 +412,7 @@ impl ArmTransition {
                         inertial: self.last_inertial_var[i],
                         rest: self.last_rest_var[i],
                         inertial_now: a_new,
-                        cos,
+                        covariance: covariance[i],
                         rest_step: rest_step[i],
                     },
                     self.model_error[i],
@@ -349,6 +426,10 @@ impl ArmTransition {
             self.last_rest_var[i] = b_new.max(0.0);
         }
         self.last_acceleration.copy_from_slice(&self.acceleration);
+        std::mem::swap(&mut self.last_com_grad, &mut self.com_grad);
+        std::mem::swap(&mut self.last_regressor, &mut self.regressor);
+        std::mem::swap(&mut self.last_columns, &mut self.columns);
+        self.torque_step_cov = covariance;
         self.terms_set = true;
         for (w, v) in self.white.iter_mut().zip(&stiction_var) {
             *w = (*w * *w + v).sqrt();
@@ -377,15 +458,15 @@ struct CarriedError {
     rest: f64,
     /// A': the inertial part's variance now.
     inertial_now: f64,
-    /// The cosine between the model's acceleration vectors then and now.
-    cos: f64,
+    /// C: the inertial part's covariance between then and now.
+    covariance: f64,
     /// D: the variance of the rest's change (its regressors' moves).
     rest_step: f64,
 }
 
 /// The model error's carry k and step variance over one tick, given its last value `e`: e =
-/// W . qdd + b (W isotropic with Var(W . qdd) = A, Var b = B), e' = W . qdd' + b + d (Var d =
-/// D), Cov(W . qdd, W . qdd') = C = cos sqrt(A A'); the Gaussian conditional E[e' | e] = k e,
+/// i + b (the inertial part i with Var i = A, Var b = B), e' = i' + b + d (Var i' = A', Var d =
+/// D), Cov(i, i') = C (clamped to +-sqrt(A A')); the Gaussian conditional E[e' | e] = k e,
 /// k = (C + B) / (A + B), Var[e' | e] = A' + B + D - (C + B)^2 / (A + B), scaled by kappa =
 /// max(1, e^2 / (A + B)) (docs/method.md, "Model error as a state").
 fn carried_error(b: CarriedError, e: f64) -> (f64, f64) {
@@ -393,7 +474,8 @@ fn carried_error(b: CarriedError, e: f64) -> (f64, f64) {
     if prior.is_nan() || prior <= 0.0 {
         return (1.0, b.inertial_now + b.rest_step);
     }
-    let c = b.cos * (b.inertial * b.inertial_now).sqrt();
+    let bound = (b.inertial * b.inertial_now).sqrt();
+    let c = b.covariance.clamp(-bound, bound);
     let kappa = (e * e / prior).max(1.0);
     let told = (c + b.rest) * (c + b.rest) / prior;
     let var = b.inertial_now + b.rest + b.rest_step - told;
@@ -608,10 +690,42 @@ mod tests {
             com: 0.08,
             damping: 0.5,
             friction: 0.3,
+            inertial_budget: InertialBudget::PerJoint,
         };
         let g = [0.0, 0.0, -9.81];
         let t = ArmTransition::new(model.clone(), g, 0.0, 0.0, 200.0).with_uncertainty(u);
         (model, u, g, t)
+    }
+
+    /// Per joint, the centre-of-mass error's regressors at `d`'s configuration under `qdd`
+    /// (sigma = com x the body's length scale), flattened (joint j's at j * bodies).
+    fn com_regressors(
+        d: &Dynamics,
+        model: &ArmModel,
+        u: ModelUncertainty,
+        qdd: &[f64],
+    ) -> Vec<[nalgebra::Vector3<f64>; 2]> {
+        let nb = model.bodies.len();
+        let sigma: Vec<f64> = (0..nb)
+            .map(|b| {
+                if b == 0 {
+                    0.0
+                } else {
+                    u.com * length_scale(model, b)
+                }
+            })
+            .collect();
+        let mut grad = vec![[nalgebra::Vector3::zeros(); 2]; model.joints.len() * nb];
+        d.centre_of_mass_regressors(qdd, &sigma, &mut grad);
+        grad
+    }
+
+    /// The variance a joint's regressors give (sum of squared norms).
+    fn com_var(grad: &[[nalgebra::Vector3<f64>; 2]], j: usize, nb: usize) -> f64 {
+        grad[j * nb..(j + 1) * nb]
+            .iter()
+            .map(|[g, h]| g.norm_squared() + h.norm_squared())
+            .sum()
     }
 
     /// The process noise of an uncertain model against a direct evaluation: the torque errors
@@ -621,17 +735,23 @@ mod tests {
         let (model, u, g, mut t) = uncertain_spatial_arm(0.0);
         let x = [0.3, -0.7, 0.4, 0.5, -1.0, 0.8];
         let tau = [4.0, -3.0, 1.0];
-        let noise = t.evaluate(&x, &tau).noise.to_vec();
+        let evaluated = t.evaluate(&x, &tau);
+        let noise = evaluated.noise.to_vec();
+        let qdd = evaluated.acceleration.unwrap().to_vec();
         let mut d = Dynamics::new(model.clone(), g);
         d.set_configuration(&x[..3]);
         d.compute(&x[3..]);
         let minv = d.mass_matrix().clone().try_inverse().unwrap();
         let com = t.com_torque.clone();
+        let nb = model.bodies.len();
+        let grad = com_regressors(&d, &model, u, &qdd);
         for i in 0..3 {
             let mut var = 0.0;
             for (j, joint) in model.joints.iter().enumerate() {
                 let inertial = tau[j] - d.bias()[j] - joint.damping * x[3 + j];
+                assert!(com_var(&grad, j, nb) > 0.0);
                 let s2 = (u.mass.max(u.inertia) * inertial).powi(2)
+                    + com_var(&grad, j, nb)
                     + (u.mass * d.bias()[j]).powi(2)
                     + com[j].powi(2)
                     + (u.damping * joint.damping * x[3 + j]).powi(2)
@@ -701,7 +821,8 @@ mod tests {
     }
 
     /// The carry and step are the Gaussian conditional of e' given e: a Monte Carlo of the
-    /// model they assume (W isotropic in 3 joints, b, its step d) regressed e' on e.
+    /// model they assume (an inertial part W . qdd with W isotropic in 3 joints, b, its step d)
+    /// regressed e' on e.
     #[test]
     fn the_carried_model_error_is_the_conditional_of_its_model() {
         use rand::SeedableRng;
@@ -716,7 +837,7 @@ mod tests {
             inertial: s * s * norm(&qdd),
             rest: b_sd * b_sd,
             inertial_now: s * s * norm(&qdd_now),
-            cos: dot / (norm(&qdd) * norm(&qdd_now)).sqrt(),
+            covariance: s * s * dot,
             rest_step: d_sd * d_sd,
         };
         let (k, var) = carried_error(budget, 0.0);
@@ -743,7 +864,7 @@ mod tests {
         // Unchanged regressors: carried whole, no step.
         let still = CarriedError {
             inertial_now: budget.inertial,
-            cos: 1.0,
+            covariance: budget.inertial,
             rest_step: 0.0,
             ..budget
         };
@@ -777,15 +898,27 @@ mod tests {
             );
         }
         // Joint 1's torque raised by d at the same state: only the inertial part moves. By
-        // hand: A and A' the inertial torques u (tau - bias - D qd) through M^-1, B the rest
-        // (mass bias, centre of mass, damping, friction), C from the accelerations' cosine.
+        // hand: A and A' the inertial torques u (tau - bias - D qd) and the centre-of-mass
+        // regressors' variances through M^-1, B the rest (mass bias, centre of mass' gravity
+        // torque, damping, friction), C the inertial part's covariance joint by joint: sum_j
+        // M^-1_ij^2 (u^2 r_j r'_j + the regressors' dot products), r_j the inertial torques.
         let com_torque = t.com_torque.clone();
-        let budget = |tau: &[f64; 3]| -> (Vec<f64>, Vec<f64>) {
+        let nb = model.bodies.len();
+        let inertial_torque = |tau: &[f64; 3]| -> Vec<f64> {
+            (0..3)
+                .map(|j| {
+                    let joint = &model.joints[j];
+                    u.mass.max(u.inertia) * (tau[j] - d.bias()[j] - joint.damping * x[3 + j])
+                })
+                .collect()
+        };
+        let budget = |tau: &[f64; 3], qdd: &[f64]| -> (Vec<f64>, Vec<f64>) {
             let (mut inertial, mut rest) = (vec![0.0; 3], vec![0.0; 3]);
+            let r = inertial_torque(tau);
+            let grad = com_regressors(&d, &model, u, qdd);
             for j in 0..3 {
                 let joint = &model.joints[j];
                 let bias = d.bias()[j];
-                let t0 = u.mass.max(u.inertia) * (tau[j] - bias - joint.damping * x[3 + j]);
                 let others = [
                     u.mass * bias,
                     com_torque[j],
@@ -794,7 +927,7 @@ mod tests {
                 ];
                 for i in 0..3 {
                     let m2 = minv[(i, j)] * minv[(i, j)];
-                    inertial[i] += m2 * t0 * t0;
+                    inertial[i] += m2 * (r[j] * r[j] + com_var(&grad, j, nb));
                     rest[i] += m2 * others.iter().map(|v| v * v).sum::<f64>();
                 }
             }
@@ -807,14 +940,25 @@ mod tests {
         let after = moved.acceleration.unwrap().to_vec();
         let c = moved.correlated.unwrap();
         let (carried, stepped) = (c.carry.to_vec(), c.step.to_vec());
-        let (a, b) = budget(&tau);
-        let (a_now, _) = budget(&raised);
-        let dot: f64 = before.iter().zip(&after).map(|(p, q)| p * q).sum();
-        let norms: f64 =
-            before.iter().map(|v| v * v).sum::<f64>() * after.iter().map(|v| v * v).sum::<f64>();
-        let cos = dot / norms.sqrt();
+        let (a, b) = budget(&tau, &before);
+        let (a_now, _) = budget(&raised, &after);
+        let (r, r_now) = (inertial_torque(&tau), inertial_torque(&raised));
+        let (grad, grad_now) = (
+            com_regressors(&d, &model, u, &before),
+            com_regressors(&d, &model, u, &after),
+        );
         for i in 0..3 {
-            let cov = cos * (a[i] * a_now[i]).sqrt();
+            let cov: f64 = (0..3)
+                .map(|j| {
+                    let dots: f64 = (0..nb)
+                        .map(|b| {
+                            let (p, q) = (grad[j * nb + b], grad_now[j * nb + b]);
+                            p[0].dot(&q[0]) + p[1].dot(&q[1])
+                        })
+                        .sum();
+                    minv[(i, j)] * minv[(i, j)] * (r[j] * r_now[j] + dots)
+                })
+                .sum();
             let carry = (cov + b[i]) / (a[i] + b[i]);
             let step = (a_now[i] + b[i] - (cov + b[i]).powi(2) / (a[i] + b[i])).sqrt();
             assert!(
