@@ -220,8 +220,9 @@ fn the_schema_knows_every_key_of_every_bundled_scenario_and_refuses_others() {
 }
 
 /// `init` into a path with a space suggests a run command a shell splits back into that path;
-/// the run's "wrote" line names exactly the files its folder holds; `--calib` with a method
-/// that needs no detector calibration is reported as unused (a warning: the run goes on).
+/// the run's "wrote" line names exactly the files its folder holds (not its hidden marker);
+/// `--calib` with a method that needs no detector calibration is reported as unused (a
+/// warning: the run goes on).
 #[test]
 fn suggested_commands_paste_wrote_lines_name_the_files_and_unused_options_say_so() {
     let tmp = tempfile::tempdir().unwrap();
@@ -280,8 +281,10 @@ fn suggested_commands_paste_wrote_lines_name_the_files_and_unused_options_say_so
     let mut files: Vec<String> = std::fs::read_dir(d.join("out"))
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|name| name != ".aift-output")
         .collect();
     files.sort();
     assert!(files.len() >= 5, "{files:?}");
     assert_eq!(wrote, files.join(", "));
+    assert!(d.join("out/.aift-output").is_file());
 }

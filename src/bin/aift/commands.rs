@@ -781,13 +781,15 @@ fn describe_gp(setup: &RunSetup) -> String {
 }
 
 /// The files a finished output folder holds, sorted, for the "wrote" line (read back, so the
-/// line names what is there: the report, the GP model and the arm's URDF too).
+/// line names what is there: the report, the GP model and the arm's URDF too), without the
+/// hidden marker that says aift wrote the folder.
 fn folder_listing(dir: &Path) -> String {
     let mut names: Vec<String> = std::fs::read_dir(dir)
         .map(|entries| {
             entries
                 .filter_map(|e| e.ok())
                 .map(|e| e.file_name().to_string_lossy().into_owned())
+                .filter(|name| name != aift::fsio::OUTPUT_MARKER)
                 .collect()
         })
         .unwrap_or_default();
