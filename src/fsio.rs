@@ -34,6 +34,11 @@ pub const MAX_TRAJECTORY_BYTES: u64 = 8 << 30;
 /// have it (or are empty), never a folder of the user's.
 pub const OUTPUT_MARKER: &str = ".aift-output";
 
+/// A digest of this build's source (`build.rs`: the files under `src/`, `Cargo.toml`,
+/// `Cargo.lock`). Campaign journals and cached calibrations carry it: work of another build is
+/// never resumed or reused, though the crate's version stays the same between commits.
+pub const SOURCE_DIGEST: &str = env!("AIFT_SOURCE_DIGEST");
+
 /// Errors of reading inputs and writing outputs, each naming the path.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]

@@ -35,12 +35,8 @@ pub mod scenario;
 pub mod sensors;
 mod settings;
 
+pub use fsio::SOURCE_DIGEST;
 pub use settings::{SettingError, check_window, tick_at};
-
-/// A digest of this build's source (`build.rs`: the files under `src/`, `Cargo.toml`,
-/// `Cargo.lock`). Campaign journals and cached calibrations carry it: work of another build is
-/// never resumed or reused, though the crate's version stays the same between commits.
-pub const SOURCE_DIGEST: &str = env!("AIFT_SOURCE_DIGEST");
 
 /// Most worker threads aift's thread pool is given, whatever `RAYON_NUM_THREADS` asks for:
 /// four per core, and at least 64 (`RAYON_NUM_THREADS=100000` spent minutes creating threads).

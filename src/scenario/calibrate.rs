@@ -156,7 +156,7 @@ pub fn cached_calibration(
         dir.join(format!(
             "calibration-{}-{}-{}runs-pool{}.json",
             fingerprint(setup),
-            crate::SOURCE_DIGEST,
+            crate::fsio::SOURCE_DIGEST,
             runs,
             setup.scenario().detector.pool_ticks
         ))

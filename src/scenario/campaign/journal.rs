@@ -9,7 +9,7 @@
 //! lost machine at most the last second. A torn last line is dropped; a header that does not
 //! match the campaign as run now (another configuration, overrides, shard, version or build) starts
 //! the journal afresh. The version alone does not tell builds apart (it stays the same between
-//! commits): the header carries the build's source digest ([`crate::SOURCE_DIGEST`]), so that a
+//! commits): the header carries the build's source digest ([`crate::fsio::SOURCE_DIGEST`]), so that a
 //! campaign rerun after a rebuild never mixes the jobs of two builds. A job's records are the same whether computed now or read back (serde's
 //! shortest round-trip floats), so a resumed campaign writes the same bytes as an uninterrupted
 //! one.
@@ -37,7 +37,7 @@ pub const MAX_JOURNAL_BYTES: u64 = crate::fsio::MAX_CALIBRATION_BYTES;
 struct Header {
     aift_campaign_journal: u32,
     aift_version: String,
-    /// [`crate::SOURCE_DIGEST`] of the build that wrote it.
+    /// [`crate::fsio::SOURCE_DIGEST`] of the build that wrote it.
     build: String,
     campaign: String,
     fingerprint: String,
@@ -121,7 +121,7 @@ impl Journal {
         let header = Header {
             aift_campaign_journal: JOURNAL_FORMAT,
             aift_version: env!("CARGO_PKG_VERSION").into(),
-            build: crate::SOURCE_DIGEST.into(),
+            build: crate::fsio::SOURCE_DIGEST.into(),
             campaign: campaign.config.name.clone(),
             fingerprint: campaign.fingerprint.clone(),
             config_digest: super::config_digest(&campaign.config),
