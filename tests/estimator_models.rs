@@ -272,6 +272,9 @@ fn the_per_joint_budget_covers_the_drawn_model_errors_about_coaxial_joints() {
     };
     let (per_joint, total) = beyond(InertialBudget::PerJoint);
     let (shared, _) = beyond(InertialBudget::SharedCosine);
+    // Printed for docs/method.md (`cargo test --release --test estimator_models per_joint --
+    // --nocapture`).
+    eprintln!("beyond 3 sigma: per-joint {per_joint}, shared cosine {shared} of {total}");
     assert!(
         per_joint * 40 <= total && shared >= 5 * per_joint,
         "beyond 3 sigma: per-joint {per_joint}, shared cosine {shared} of {total}"

@@ -185,6 +185,20 @@ pub struct ModelUncertainty {
 }
 
 impl ModelUncertainty {
+    /// Per body of `model`, its centre of mass' assumed error per axis (m, one standard
+    /// deviation): `com` x the body's length scale ([`length_scale`]); 0 for the root.
+    pub fn centre_of_mass_sigma(&self, model: &ArmModel) -> Vec<f64> {
+        (0..model.bodies.len())
+            .map(|b| {
+                if b == 0 {
+                    0.0
+                } else {
+                    self.com * length_scale(model, b)
+                }
+            })
+            .collect()
+    }
+
     pub fn is_zero(&self) -> bool {
         self.mass == 0.0
             && self.inertia == 0.0

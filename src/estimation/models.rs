@@ -105,7 +105,7 @@ pub struct ArmTransition {
     /// beyond it: g sqrt(sum_b (com m_b L_b)^2).
     com_torque: Vec<f64>,
     /// Per body, the centre of mass' error per axis (m, one standard deviation): com x its
-    /// length scale; and scratch for each joint's inertial torque variance from it.
+    /// length scale.
     com_sigma: Vec<f64>,
     /// Per joint and body, the centre-of-mass error's torque regressors
     /// ([`Dynamics::centre_of_mass_regressors`]) now and at the last evaluation.
@@ -228,15 +228,7 @@ impl ArmTransition {
             }
         }
         self.com_torque = sums.into_iter().map(f64::sqrt).collect();
-        self.com_sigma = (0..model.bodies.len())
-            .map(|b| {
-                if b == 0 {
-                    0.0
-                } else {
-                    uncertainty.com * length_scale(&model, b)
-                }
-            })
-            .collect();
+        self.com_sigma = uncertainty.centre_of_mass_sigma(&model);
         self.uncertainty = uncertainty;
         self
     }
@@ -292,7 +284,9 @@ impl ArmTransition {
             };
             self.torque_error[j] = terms.iter().map(|t| t * t).sum::<f64>() + com_var;
             inertial_torque[j] = terms[0] * terms[0] + com_var;
-            self.regressor[j] = terms[0];
+            if per_joint {
+                self.regressor[j] = terms[0];
+            }
             // The friction the model applied over the tick (the ramp at the tick's end velocity,
             // saturated, as the implicit step takes it): where the model's friction moves (a
             // joint it sees reverse, stick or slip) the truth need not, so the error moves by
@@ -347,7 +341,9 @@ impl ArmTransition {
             self.column.fill(0.0);
             self.column[j] = 1.0;
             self.dynamics.solve_factored(&mut self.column);
-            self.columns[j * n..(j + 1) * n].copy_from_slice(&self.column);
+            if per_joint {
+                self.columns[j * n..(j + 1) * n].copy_from_slice(&self.column);
+            }
             for (k, m) in self.column.iter().enumerate() {
                 let m2 = m * m;
                 var[k] += m2 * self.torque_error[j];
@@ -372,8 +368,21 @@ impl ArmTransition {
         // covariance from their regressors (the joint's own inertial torque, the centres of
         // mass' gradients).
         let mut covariance = std::mem::take(&mut self.torque_step_cov);
-        covariance.iter_mut().for_each(|v| *v = 0.0);
-        if !per_joint {
+        if per_joint {
+            covariance.iter_mut().for_each(|v| *v = 0.0);
+            for j in 0..n {
+                let mut cov = self.regressor[j] * self.last_regressor[j];
+                for (now, last) in self.com_grad[j * nb..(j + 1) * nb]
+                    .iter()
+                    .zip(&self.last_com_grad[j * nb..(j + 1) * nb])
+                {
+                    cov += now[0].dot(&last[0]) + now[1].dot(&last[1]);
+                }
+                for (i, c) in covariance.iter_mut().enumerate() {
+                    *c += self.columns[j * n + i] * self.last_columns[j * n + i] * cov;
+                }
+            }
+        } else {
             // `shared-cosine`: C = cos(qdd_last, qdd) sqrt(A A') for every joint (an inertial
             // part W_i . qdd with W_i isotropic).
             let (mut aa, mut ab, mut bb) = (0.0, 0.0, 0.0);
@@ -389,18 +398,6 @@ impl ArmTransition {
             };
             for (i, c) in covariance.iter_mut().enumerate() {
                 *c = cos * (self.last_inertial_var[i] * inertial_var[i]).sqrt();
-            }
-        }
-        for j in (0..n).filter(|_| per_joint) {
-            let mut cov = self.regressor[j] * self.last_regressor[j];
-            for (now, last) in self.com_grad[j * nb..(j + 1) * nb]
-                .iter()
-                .zip(&self.last_com_grad[j * nb..(j + 1) * nb])
-            {
-                cov += now[0].dot(&last[0]) + now[1].dot(&last[1]);
-            }
-            for (i, c) in covariance.iter_mut().enumerate() {
-                *c += self.columns[j * n + i] * self.last_columns[j * n + i] * cov;
             }
         }
         for i in 0..n {
@@ -706,15 +703,7 @@ mod tests {
         qdd: &[f64],
     ) -> Vec<[nalgebra::Vector3<f64>; 2]> {
         let nb = model.bodies.len();
-        let sigma: Vec<f64> = (0..nb)
-            .map(|b| {
-                if b == 0 {
-                    0.0
-                } else {
-                    u.com * length_scale(model, b)
-                }
-            })
-            .collect();
+        let sigma = u.centre_of_mass_sigma(model);
         let mut grad = vec![[nalgebra::Vector3::zeros(); 2]; model.joints.len() * nb];
         d.centre_of_mass_regressors(qdd, &sigma, &mut grad);
         grad

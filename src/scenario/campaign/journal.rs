@@ -3,14 +3,15 @@
 //! the jobs it had not finished (docs/campaigns.md, "Resuming").
 //!
 //! The journal is a JSON Lines file: a header naming the campaign (fingerprint, configuration
-//! digest, shard, aift version and build), then one line per finished job with its records in full
-//! precision and the seconds it took. Lines are appended and flushed as jobs finish and synced
-//! to disk at most once a second, so a killed process loses at most the job it was writing and a
-//! lost machine at most the last second. A torn last line is dropped; a header that does not
-//! match the campaign as run now (another configuration, overrides, shard, version or build) starts
-//! the journal afresh. The version alone does not tell builds apart (it stays the same between
-//! commits): the header carries the build's source digest ([`crate::fsio::SOURCE_DIGEST`]), so that a
-//! campaign rerun after a rebuild never mixes the jobs of two builds. A job's records are the same whether computed now or read back (serde's
+//! digest, shard, aift version and build), then one line per finished job with its records in
+//! full precision and the seconds it took. Lines are appended and flushed as jobs finish and
+//! synced to disk at most once a second, so a killed process loses at most the job it was
+//! writing and a lost machine at most the last second. A torn last line is dropped; a header
+//! that does not match the campaign as run now (another configuration, overrides, shard,
+//! version or build) starts the journal afresh. The version alone does not tell builds apart (it
+//! stays the same between commits): the header carries the build's source digest
+//! ([`crate::fsio::SOURCE_DIGEST`]), so that a campaign rerun after a rebuild never mixes the
+//! jobs of two builds. A job's records are the same whether computed now or read back (serde's
 //! shortest round-trip floats), so a resumed campaign writes the same bytes as an uninterrupted
 //! one.
 
