@@ -230,9 +230,9 @@ fn the_implicit_model_step_bounds_the_friction_as_the_plant_does() {
 /// The model-error budget against a Monte Carlo of the errors it budgets for: the Panda standing
 /// upright (q = 0: joints 1, 3, 5 and 7 coaxial, the links' centres of mass near their axes) hit
 /// by a target step's torques, 300 models drawn as `[model]` draws them (the default sizes), the
-/// truth's acceleration minus each model's in units of the model's own budget. The default
-/// budget, which leaves the centres of mass' parallel-axis inertia out, has 274 of the 2100
-/// joint errors beyond 3 of its standard deviations; `model.inertial_budget = "per-joint"` 41
+/// truth's acceleration minus each model's in units of the model's own budget. The
+/// `shared-cosine` budget, which leaves the centres of mass' parallel-axis inertia out, has 274
+/// of the 2100 joint errors beyond 3 of its standard deviations; `per-joint` (the default) 41
 /// (asserted: at most 2.5 %, and at least 5x fewer). What remains is joint 1, whose
 /// acceleration at this pose comes from differences of the coaxial joints' torques over
 /// differences of small inertias: the truth's inverse mass matrix there differs from the

@@ -105,10 +105,11 @@ pub struct ModelConfig {
     pub step: PredictionStep,
     /// How a model-based estimator budgets the inertial part of its model error and, carrying
     /// it as a state (the hybrid's bank), moves it from tick to tick (docs/method.md, "Model
-    /// error as a state"): `shared-cosine` (the default) or `per-joint` (each joint's own
-    /// regressors, with the inertia a centre-of-mass error adds about a joint's axis; opt-in
-    /// while it is screened). Written only when not the default, so that the
-    /// fingerprints of scenarios that do not set it stay as they were.
+    /// error as a state"): `per-joint` (the default since 2026-12-06: each joint's own
+    /// regressors, with the inertia a centre-of-mass error adds about a joint's axis) or
+    /// `shared-cosine` (one cosine for every joint, the default before). Written only when not
+    /// the default; the build digest in journals and calibration caches keeps results of the
+    /// two defaults apart.
     #[serde(skip_serializing_if = "InertialBudget::is_default")]
     pub inertial_budget: InertialBudget,
 }
@@ -122,11 +123,11 @@ pub enum InertialBudget {
     /// The inertial torque error u (M qdd)_j per joint (u the larger of the mass and inertia
     /// sizes), carried by one cosine of the model's acceleration vectors then and now for every
     /// joint.
-    #[default]
     SharedCosine,
     /// The same torque error plus the centres of mass' (their gradients and the parallel-axis
     /// inertia a centre-of-mass error adds about an axis), each joint's carried by its own
     /// regressors' covariance then and now.
+    #[default]
     PerJoint,
 }
 
@@ -165,7 +166,7 @@ impl Default for ModelConfig {
             acceleration_noise: 2.0,
             relative_error: 0.1,
             step: PredictionStep::Implicit,
-            inertial_budget: InertialBudget::SharedCosine,
+            inertial_budget: InertialBudget::PerJoint,
         }
     }
 }
