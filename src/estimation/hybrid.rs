@@ -175,7 +175,9 @@ pub struct HybridConfig {
     /// torque on every joint at once (a push, a payload, a contact), so that an unexpected
     /// acceleration is explained as a torque, not as sensors failing. Off by default: measured
     /// in docs/method.md, it helps actuator faults and hurts tachometer spikes. Needs
-    /// `model_error_state = false` (the state would explain a lasting torque error). (This and
+    /// `model_error_state = false` (the state would explain a lasting torque error); measured
+    /// with `model.inertial_budget = "shared-cosine"`, whose narrower budget at a target step
+    /// detects a dead wrist motor in more seeds than `per-joint` (docs/method.md). (This and
     /// `actuator_broad` are written only when not the default, so that fingerprints of
     /// scenarios that do not set them stay as they were.)
     #[serde(skip_serializing_if = "is_false")]
