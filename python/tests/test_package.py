@@ -353,6 +353,7 @@ def test_step_api_reports_the_methods_actuator_alarms_as_the_summary_does():
             'actuator_faults=[{joint=2, kind="locked", start=1.0}]',
             "hybrid.actuators=true",
             "hybrid.model_error_state=false",
+            'model.inertial_budget="shared-cosine"',
         ]
     )
     r = aift.run(sc, method="hybrid", seed=4)
