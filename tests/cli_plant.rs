@@ -144,3 +144,27 @@ fn simulate_bad_inputs_exit_2_and_write_nothing() {
         assert!(!out.exists(), "{args:?} wrote an output");
     }
 }
+
+/// Within the step bound (1e9) but over the trajectory file's bound (4 GiB at 24 bytes per
+/// value): refused before any step, nothing written (it once reserved 80 GB and aborted).
+#[test]
+fn simulate_refuses_a_file_over_the_size_bound_before_any_step() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("never.csv");
+    let o = aift()
+        .args(["simulate", "--urdf"])
+        .arg(repo("urdf/planar_2dof.urdf"))
+        .args(["--q0", "0,0", "--dt", "1e-6", "--duration", "1000", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("would exceed 4 GiB"), "{err}");
+    assert!(!out.exists());
+    assert_eq!(
+        std::fs::read_dir(dir.path()).unwrap().count(),
+        0,
+        "leftovers"
+    );
+}

@@ -891,6 +891,19 @@ fn init_refuses_what_cannot_work_and_passes_warnings_on() {
         d,
         "t.toml",
     );
+    // A scenario written by hand on the tree is refused too, by every command that loads it.
+    let chain = std::fs::read_to_string(d.join("chain.toml")).unwrap();
+    assert!(chain.contains("\"chain.urdf\""));
+    write(
+        "tree.toml",
+        chain.replace("\"chain.urdf\"", "\"tree.urdf\""),
+    );
+    refused(
+        &["run", "tree.toml", "--method", "no-ft", "--out", "tree-run"],
+        &["tree.toml", "robot.ee_link", "finger_joint", "serial"],
+        d,
+        "tree-run",
+    );
     // The end effector on the root.
     refused(
         &[

@@ -780,3 +780,37 @@ fn xacro_templates_are_refused_with_a_hint_and_comments_are_not() {
     let unclosed = format!("{}<!-- ${{x}}", good());
     assert!(!matches!(parse(&unclosed), Err(PlantError::Xacro { .. })));
 }
+
+/// A chain of `n` revolute joints.
+fn chain(n: usize) -> String {
+    let mut links = String::from(WORLD);
+    let mut joints = String::new();
+    let mut parent = "world".to_string();
+    for i in 0..n {
+        let child = format!("l{i}");
+        links.push_str(&link(&child));
+        joints.push_str(&joint(&format!("j{i}"), "revolute", &parent, &child));
+        parent = child;
+    }
+    arm(&links, &joints)
+}
+
+/// The joint count is bounded (a 20 000-joint chain once asked the articulated engine for
+/// gigabytes): 64 loads, 65 is refused naming the count and the bound.
+#[test]
+fn more_joints_than_the_bound_are_refused() {
+    let limit = aift::arm::urdf::MAX_JOINTS;
+    assert_eq!(parse(&chain(limit)).unwrap().joints.len(), limit);
+    match parse(&chain(limit + 1)) {
+        Err(e @ PlantError::TooManyJoints { .. }) => {
+            let text = e.to_string();
+            assert!(text.contains("bad.urdf"), "{text}");
+            assert!(
+                text.contains(&format!("{} movable joints", limit + 1)),
+                "{text}"
+            );
+            assert!(text.contains(&format!("more than {limit}")), "{text}");
+        }
+        other => panic!("expected TooManyJoints, got {other:?}"),
+    }
+}

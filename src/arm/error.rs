@@ -124,6 +124,14 @@ pub enum ArmError {
     },
     #[error("{path}: no movable joint (revolute, continuous or prismatic): nothing to control")]
     NoMovableJoint { path: PathBuf },
+    #[error(
+        "{path}: {count} movable joints; more than {limit} is refused (every estimator's state, the camera model's inputs and the controller grow with it)"
+    )]
+    TooManyJoints {
+        path: PathBuf,
+        count: usize,
+        limit: usize,
+    },
     #[error("gen-arm: {message}")]
     Generate { message: String },
     #[error("{path}: end-effector link '{link}' does not exist (links: {available})")]
@@ -161,6 +169,7 @@ impl ArmError {
             | Self::MasslessBody { path, .. }
             | Self::Xacro { path, .. }
             | Self::NoMovableJoint { path }
+            | Self::TooManyJoints { path, .. }
             | Self::UnknownEndEffector { path, .. } => path,
         }
     }

@@ -57,6 +57,23 @@ impl EndEffector {
         })
     }
 
+    /// Whether the arm is serial up to this end effector: the first joint that does not move it
+    /// (none moves a point on the root; on a tree, the joints of another branch), or `None`
+    /// when every joint does. aift controls serial arms: the camera sees only this point and
+    /// the camera model is a function of every joint.
+    pub fn first_joint_not_moving(&self, model: &ArmModel) -> Option<usize> {
+        let mut moves = vec![false; model.joints.len()];
+        let mut body = self.body;
+        while body != 0 {
+            let Some(j) = model.joints.iter().position(|j| j.child_body == body) else {
+                break;
+            };
+            moves[j] = true;
+            body = model.joints[j].parent_body;
+        }
+        moves.iter().position(|m| !m)
+    }
+
     /// Its world position given the bodies' world poses.
     pub fn position(&self, poses: &[Isometry3<f64>]) -> Vector3<f64> {
         self.position_in(&poses[self.body])

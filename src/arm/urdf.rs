@@ -25,6 +25,11 @@ use super::model::{
 /// Deepest XML nesting accepted. Real URDFs nest about 5 levels.
 pub const MAX_XML_DEPTH: usize = 64;
 
+/// Most movable joints an arm may have: 64 (a 7-DOF arm is the common large case; a 30-joint
+/// chain is in the tests). Each estimator's state and the u-AIC's Hessian are 2n wide, the camera
+/// model has n inputs; a bound keeps a malformed or generated file from asking for gigabytes.
+pub const MAX_JOINTS: usize = 64;
+
 /// Relative tolerance of the inertia triangle inequality (rounding in published tensors).
 const TRIANGLE_TOLERANCE: f64 = 1e-6;
 
@@ -587,6 +592,13 @@ pub(crate) fn build_model(
     }
     if walk.joints.is_empty() {
         return Err(ArmError::NoMovableJoint { path: p() });
+    }
+    if walk.joints.len() > MAX_JOINTS {
+        return Err(ArmError::TooManyJoints {
+            path: p(),
+            count: walk.joints.len(),
+            limit: MAX_JOINTS,
+        });
     }
     for joint in &robot.joints {
         if joint.joint_type != urdf_rs::JointType::Fixed && joint.mimic.is_some() {

@@ -44,6 +44,7 @@ pub const MAX_SUBSTEPS: usize = 1000;
 #[serde(deny_unknown_fields, default)]
 pub struct ArticulatedSettings {
     /// Substeps per tick (>= 1): 2 by default, the same first-order map as rapier's default.
+    #[schemars(range(min = 1, max = 1000))]
     pub substeps: usize,
     /// `euler` (rapier's map, default), `rk4` or `explicit-euler` (the authors' MATLAB plant).
     pub integrator: Integrator,

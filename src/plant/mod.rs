@@ -25,7 +25,7 @@ pub use actuators::{
 };
 pub use articulated::{ArticulatedPlant, ArticulatedSettings, Integrator, MAX_SUBSTEPS};
 pub use disturbances::{Disturbance, DisturbanceKind, DisturbanceSpec, Disturbances};
-pub use open_loop::{OpenLoopSample, open_loop_header, run_open_loop};
+pub use open_loop::{OpenLoopSample, open_loop_header, run_open_loop, run_open_loop_with};
 pub use rapier::{
     MAX_OBSTACLES, MAX_SOLVER_ITERATIONS, Obstacle, ObstacleShape, RapierPlant, RapierSettings,
 };

@@ -13,7 +13,8 @@ pub struct OpenLoopSample {
 }
 
 /// Runs the arm from (q0, qd0) with constant torques for `duration` seconds at step `dt`.
-/// Returns one sample per tick, from t = 0 to the last tick (round(duration / dt) steps).
+/// Returns one sample per tick, from t = 0 to the last tick (round(duration / dt) steps): the
+/// whole run in memory (for a long run, [`run_open_loop_with`] hands each sample over instead).
 ///
 /// # Panics
 /// If a slice does not have one entry per joint.
@@ -26,10 +27,35 @@ pub fn run_open_loop(
     duration: f64,
     dt: f64,
 ) -> Vec<OpenLoopSample> {
+    let mut out = Vec::new();
+    let done: Result<(), std::convert::Infallible> =
+        run_open_loop_with(arm, ee, q0, qd0, torque, duration, dt, |s| {
+            out.push(s.clone());
+            Ok(())
+        });
+    let Ok(()) = done;
+    out
+}
+
+/// [`run_open_loop`] without keeping the run: `visit` gets each sample as it is made (memory
+/// does not grow with the run's length) and stops the run with its first error.
+///
+/// # Panics
+/// If a slice does not have one entry per joint.
+#[allow(clippy::too_many_arguments)]
+pub fn run_open_loop_with<E>(
+    arm: &mut dyn Plant,
+    ee: &EndEffector,
+    q0: &[f64],
+    qd0: &[f64],
+    torque: &[f64],
+    duration: f64,
+    dt: f64,
+    mut visit: impl FnMut(&OpenLoopSample) -> Result<(), E>,
+) -> Result<(), E> {
     arm.set_state(q0, qd0);
     arm.set_torques(torque);
     let steps = (duration / dt).round() as usize;
-    let mut out = Vec::with_capacity(steps + 1);
     let sample = |arm: &dyn Plant, k: usize| {
         let (q, qd) = arm.state();
         let p = arm.ee_position(ee);
@@ -40,12 +66,12 @@ pub fn run_open_loop(
             ee: [p.x, p.y, p.z],
         }
     };
-    out.push(sample(arm, 0));
+    visit(&sample(arm, 0))?;
     for k in 1..=steps {
         arm.step(dt);
-        out.push(sample(arm, k));
+        visit(&sample(arm, k))?;
     }
-    out
+    Ok(())
 }
 
 /// The CSV header of an open-loop run: `t,q1..qn,qd1..qdn,ee_x,ee_y,ee_z`.

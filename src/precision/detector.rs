@@ -61,6 +61,7 @@ pub struct DetectorConfig {
     /// Half-width (ticks) of the window the per-step moments are pooled over.
     pub pool_ticks: usize,
     /// Number of healthy runs for calibration.
+    #[schemars(range(min = 2, max = 10000))]
     pub calibration_runs: usize,
     /// Ticks an isolated channel's innovation must stay within sqrt(1 / alpha) of its healthy
     /// spread before it is re-admitted; 0 never re-admits (the ECC paper's latch).

@@ -37,6 +37,7 @@ pub struct MomentumConfig {
     /// Healthy runs (the scenario without faults, `no-ft`, seeds from 2^41) the thresholds are
     /// calibrated on. They are the no-ft belief's residuals: another method's belief (the
     /// hybrid's, a Kalman filter's) may leave other residuals on healthy runs.
+    #[schemars(range(min = 1, max = 1000))]
     pub calibration_runs: usize,
     /// Threshold per joint: `margin` x the largest |r_j| the healthy runs showed.
     pub margin: f64,

@@ -32,6 +32,7 @@ pub struct Scenario {
     pub seed: u64,
     /// Ticks between trajectory rows (1: every tick).
     #[serde(default = "default_record_every")]
+    #[schemars(range(min = 1))]
     pub record_every: u64,
     /// The arm: URDF, end effector, gravity.
     pub robot: RobotConfig,
@@ -197,7 +198,8 @@ pub struct GpConfig {
     pub seed: u64,
     /// A saved model to load instead of training (relative to the scenario file).
     pub model: Option<PathBuf>,
-    /// Hyperparameter-fit restarts.
+    /// Hyperparameter-fit restarts (1 to 100; each is one fit from a new start).
+    #[schemars(range(min = 1, max = 100))]
     pub restarts: usize,
 }
 
@@ -249,8 +251,8 @@ impl GpConfig {
                 ));
             }
         }
-        if self.restarts == 0 {
-            return Err(SettingError::new("restarts", "must be >= 1"));
+        if !(1..=100).contains(&self.restarts) {
+            return Err(SettingError::new("restarts", "must be in 1..=100"));
         }
         Ok(())
     }

@@ -305,15 +305,6 @@ fn check_serial(
     } else {
         format!("the end effector '{ee_name}' (chosen by init; --ee picks another)")
     };
-    let mut moves = vec![false; model.joints.len()];
-    let mut body = ee.body;
-    while body != 0 {
-        let Some(j) = model.joints.iter().position(|j| j.child_body == body) else {
-            break;
-        };
-        moves[j] = true;
-        body = model.joints[j].parent_body;
-    }
     if ee.body == 0 {
         return Err(ScenarioError::Invalid {
             path: urdf.to_path_buf(),
@@ -324,7 +315,7 @@ fn check_serial(
             ),
         });
     }
-    if let Some(j) = moves.iter().position(|m| !m) {
+    if let Some(j) = ee.first_joint_not_moving(model) {
         let joint = &model.joints[j];
         let at = &model.bodies[joint.parent_body].link;
         return Err(ScenarioError::Invalid {

@@ -23,7 +23,9 @@ pub mod trajectory;
 
 use std::path::PathBuf;
 
-pub use config::{GpConfig, MAX_TICKS, PrecisionConfig, RobotConfig, Scenario, Target};
+pub use config::{
+    GpConfig, MAX_TICKS, MAX_TRAJECTORY_BYTES, PrecisionConfig, RobotConfig, Scenario, Target,
+};
 pub use load::{DEFAULT_SCENARIO_NAME, Layer, LoadedScenario, parse_scenario, scenario_schema};
 pub use method::Method;
 pub use metrics::{

@@ -133,13 +133,14 @@ impl Page<'_> {
         } else {
             match ty.as_str() {
                 "number" => "number".into(),
-                "integer" => {
-                    if v.get("minimum").and_then(Value::as_f64) == Some(0.0) {
-                        "integer ≥ 0".into()
-                    } else {
-                        "integer".into()
-                    }
-                }
+                "integer" => match (
+                    v.get("minimum").and_then(Value::as_f64),
+                    v.get("maximum").and_then(Value::as_f64),
+                ) {
+                    (Some(lo), Some(hi)) => format!("integer {lo}..={hi}"),
+                    (Some(lo), None) => format!("integer ≥ {lo}"),
+                    _ => "integer".into(),
+                },
                 other => other.to_string(),
             }
         };

@@ -296,6 +296,9 @@ fn checked(loaded: &LoadedScenario) -> Result<Checked, ScenarioError> {
     let n = model.joints.len();
     let sc = &loaded.scenario;
     let layout = ChannelLayout::new(n, sc.camera.model);
+    // The end effector first: on a tree (not every joint moves it) no per-joint value can be
+    // right, and the error says why.
+    let ee = end_effector(loaded, &model)?;
     sc.validate(&layout, &loaded.path)?;
     check_joint_limits(sc, &model, &loaded.path)?;
     sc.model
@@ -305,7 +308,6 @@ fn checked(loaded: &LoadedScenario) -> Result<Checked, ScenarioError> {
             field: format!("model.{}", e.field),
             message: e.message,
         })?;
-    let ee = end_effector(loaded, &model)?;
     let mut disturbances = Vec::with_capacity(sc.disturbances.len());
     for (i, d) in sc.disturbances.iter().enumerate() {
         disturbances.push(
@@ -340,11 +342,37 @@ fn checked(loaded: &LoadedScenario) -> Result<Checked, ScenarioError> {
 /// The scenario's end effector on its arm (`robot.ee_link` and `robot.ee_offset`).
 fn end_effector(loaded: &LoadedScenario, model: &ArmModel) -> Result<EndEffector, ScenarioError> {
     let robot = &loaded.scenario.robot;
-    EndEffector::new(model, &robot.ee_link, robot.ee_offset).map_err(|e| ScenarioError::Robot {
-        path: loaded.path.clone(),
-        field: "robot.ee_link",
-        source: Box::new(e),
-    })
+    let ee = EndEffector::new(model, &robot.ee_link, robot.ee_offset).map_err(|e| {
+        ScenarioError::Robot {
+            path: loaded.path.clone(),
+            field: "robot.ee_link",
+            source: Box::new(e),
+        }
+    })?;
+    // aift controls serial arms: every joint must move the end effector.
+    if let Some(j) = ee.first_joint_not_moving(model) {
+        let joint = &model.joints[j];
+        let message = if ee.body == 0 {
+            format!(
+                "link '{}' is fixed to the world: no joint moves it (choose a link at the end \
+                 of the chain)",
+                robot.ee_link
+            )
+        } else {
+            format!(
+                "joint '{}' does not move link '{}': the arm branches at link '{}' and aift \
+                 controls serial arms (make the other branch's joints fixed, e.g. a gripper's \
+                 fingers, or choose an end effector that every joint moves)",
+                joint.name, robot.ee_link, model.bodies[joint.parent_body].link
+            )
+        };
+        return Err(ScenarioError::Invalid {
+            path: loaded.path.clone(),
+            field: "robot.ee_link".into(),
+            message,
+        });
+    }
+    Ok(ee)
 }
 
 /// The GP's training box: given, or the start and targets widened by the margin.

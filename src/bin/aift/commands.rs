@@ -1,10 +1,11 @@
 //! The commands: each parses nothing itself, calls the library, prints, and maps errors to exit
 //! codes.
 
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use anyhow::{Context, anyhow};
+use anyhow::anyhow;
 
 use aift::arm;
 use aift::fsio::{FsError, OutputKind, Staged};
@@ -1248,7 +1249,29 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
     check_len("q0", &args.q0.0)?;
     check_len("qd0", &qd0)?;
     check_len("torque", &torque)?;
-    let samples = plant::run_open_loop(
+    // The file's size, bounded as a scenario's trajectory is (24 bytes per value estimated),
+    // before any step; the rows are then written as they come, so memory does not grow with
+    // the run.
+    let header = plant::open_loop_header(n);
+    let rows = (args.duration / args.dt).round() as u64 + 1;
+    let limit = aift::scenario::MAX_TRAJECTORY_BYTES;
+    if rows.saturating_mul(header.len() as u64).saturating_mul(24) > limit {
+        return Err(bad_input(anyhow!(
+            "--duration / --dt = {rows} rows of {} columns would exceed {} GiB; use a longer --dt \
+             or a shorter --duration",
+            header.len(),
+            limit >> 30
+        )));
+    }
+    let writing = |e: std::io::Error| {
+        internal(anyhow::Error::new(e).context(format!("writing {}", args.out.display())))
+    };
+    // Written in blocks of about 64 KiB (the row text is buffered in `line`).
+    let mut file = std::fs::File::create(staged.path()).map_err(writing)?;
+    let mut line = header.join(",");
+    line.push('\n');
+    let mut row = Vec::with_capacity(header.len());
+    plant::run_open_loop_with(
         arm.as_mut(),
         &ee,
         &args.q0.0,
@@ -1256,16 +1279,22 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
         &torque,
         args.duration,
         args.dt,
-    );
-    let rows = open_loop_rows(&samples)?;
-    let text = report::csv_text(&plant::open_loop_header(n), rows.iter().map(Vec::as_slice));
-    std::fs::write(staged.path(), text)
-        .with_context(|| format!("writing {}", args.out.display()))
-        .map_err(internal)?;
+        |s| {
+            open_loop_row(s, &mut row)?;
+            aift::scenario::trajectory::format_csv_row(&row, &mut line);
+            if line.len() >= 1 << 16 {
+                file.write_all(line.as_bytes()).map_err(writing)?;
+                line.clear();
+            }
+            Ok(())
+        },
+    )?;
+    file.write_all(line.as_bytes()).map_err(writing)?;
+    file.sync_all().map_err(writing)?;
     staged.commit().map_err(file_failure)?;
     outln!(
         "wrote {} rows ({} joints, {} s at dt {}) to {}",
-        rows.len(),
+        rows,
         n,
         args.duration,
         args.dt,
@@ -1322,28 +1351,25 @@ fn simulate_settings(args: &SimulateArgs) -> Result<PlantSettings, Failure> {
 }
 
 /// The rows of `simulate`'s CSV (t, q, qd, end effector); an error if the state blew up.
-fn open_loop_rows(samples: &[plant::OpenLoopSample]) -> Result<Vec<Vec<f64>>, Failure> {
-    if let Some(bad) = samples.iter().find(|s| {
-        s.q.iter()
-            .chain(&s.qd)
-            .any(|v| !v.is_finite() || v.abs() > 1e6)
-    }) {
+/// One sample as a CSV row into `row`; a state beyond 1e6 (or not finite) stops the run.
+fn open_loop_row(s: &plant::OpenLoopSample, row: &mut Vec<f64>) -> Result<(), Failure> {
+    if s.q
+        .iter()
+        .chain(&s.qd)
+        .any(|v| !v.is_finite() || v.abs() > 1e6)
+    {
         return Err(bad_input(anyhow!(
             "the simulation blew up at t = {} s (a joint state beyond 1e6); nothing written. \
              Try a smaller --dt or more --iterations",
-            bad.t
+            s.t
         )));
     }
-    Ok(samples
-        .iter()
-        .map(|s| {
-            let mut row = vec![s.t];
-            row.extend(&s.q);
-            row.extend(&s.qd);
-            row.extend(s.ee);
-            row
-        })
-        .collect())
+    row.clear();
+    row.push(s.t);
+    row.extend(&s.q);
+    row.extend(&s.qd);
+    row.extend(s.ee);
+    Ok(())
 }
 
 #[cfg(test)]
