@@ -413,6 +413,31 @@ fn campaign_scenario_keys_are_typed_and_named_by_their_table() {
     std::fs::write(&bad_arm, text).unwrap();
     let e = err(&bad_arm);
     assert!(e.contains("`arms[0].overrides.plant.engine`"), "{e}");
+    // Values of the right type that a check refuses are blamed on the campaign file's key too,
+    // not on the template (which never held them); a --set after them is blamed as such.
+    let neg_default = write("d.toml", "defaults = { duration = -1.0 }");
+    let e = err(&neg_default);
+    assert!(
+        e.contains("d.toml") && e.contains("`defaults.duration`") && e.contains("-1"),
+        "{e}"
+    );
+    let neg_arm = write("e.toml", "");
+    let text = std::fs::read_to_string(&neg_arm).unwrap().replacen(
+        "scenario = ",
+        "overrides = { duration = -1.0 }\nscenario = ",
+        1,
+    );
+    std::fs::write(&neg_arm, text).unwrap();
+    let e = err(&neg_arm);
+    assert!(
+        e.contains("e.toml") && e.contains("`arms[0].overrides.duration`"),
+        "{e}"
+    );
+    let set = ["duration=-1".to_string()];
+    let e = aift::scenario::campaign::Campaign::load(&neg_default, &set)
+        .err()
+        .expect("refused");
+    assert_eq!(e.blamed_override(&set), Some("duration=-1"));
     let old = write("c.toml", "set = [\"duration=9.0\"]");
     let e = err(&old);
     assert!(

@@ -75,6 +75,15 @@ fn counts_beyond_their_bounds_are_refused_before_any_work() {
             vec!["gp.points"],
         ),
         (
+            // A huge restart count once panicked (capacity overflow) after minutes of fits.
+            vec!["run", "--set", "gp.restarts=9000000000000000000", "--out", "o"],
+            vec!["--set gp.restarts", "1..=100"],
+        ),
+        (
+            vec!["campaign", "--seeds", "0", "--out", "o"],
+            vec!["--seeds 0", "1..=10000"],
+        ),
+        (
             vec![
                 "simulate",
                 "--urdf",

@@ -182,6 +182,32 @@ fn leaf_keys(table: &toml::Table, prefix: &str, out: &mut Vec<String>) {
     }
 }
 
+/// A check's error about a key one of `layers` set (the last that set it: `defaults.KEY` or
+/// `arms[i].overrides.KEY` of a campaign file) is moved onto that layer's file and key, the
+/// template named after it; any other error is returned as it is.
+pub(crate) fn blame_layer(
+    error: ScenarioError,
+    layers: &[Layer],
+    template: &Path,
+) -> ScenarioError {
+    let ScenarioError::Invalid { field, message, .. } = &error else {
+        return error;
+    };
+    let blamed = layers.iter().rev().find(|layer| {
+        let mut set = Vec::new();
+        leaf_keys(&layer.table, "", &mut set);
+        set.iter().any(|k| about(field, k) || about(k, field))
+    });
+    match blamed {
+        Some(layer) => ScenarioError::Invalid {
+            path: layer.file.clone(),
+            field: format!("{}.{field}", layer.key),
+            message: format!("{message} (over {})", template.display()),
+        },
+        None => error,
+    }
+}
+
 /// Whether error key `key` is about `set` (the key itself, or inside it).
 fn about(key: &str, set: &str) -> bool {
     key == set || key.starts_with(&format!("{set}.")) || key.starts_with(&format!("{set}["))

@@ -164,6 +164,10 @@ fn campaign(args: CampaignArgs) -> Result<(), Failure> {
     // Options that change the campaign's definition go into its configuration (and fingerprint).
     let mut config = aift::scenario::campaign::CampaignConfig::load(&path).map_err(bad_input)?;
     if let Some(s) = args.seeds {
+        let max = aift::scenario::campaign::MAX_SEEDS;
+        if !(1..=max).contains(&s) {
+            return Err(bad_input(anyhow!("--seeds {s}: must be in 1..={max}")));
+        }
         config.seeds = s;
     }
     if !args.methods.is_empty() {
@@ -185,7 +189,8 @@ fn campaign(args: CampaignArgs) -> Result<(), Failure> {
     errln!("preparing {} (arms, camera models)...", path.display());
     // --set applies to every arm's template last; the fingerprint covers each resolved
     // scenario, so shards with other overrides do not merge.
-    let campaign = Campaign::from_config(config, &path, &args.set).map_err(bad_input)?;
+    let campaign = Campaign::from_config(config, &path, &args.set)
+        .map_err(|e| scenario_failure(e, &args.set))?;
     describe_campaign(&campaign, shard);
     // Every finished job goes into a journal beside the output folder; a killed run's journal
     // is resumed by running the same command again.

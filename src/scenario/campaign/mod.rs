@@ -717,9 +717,14 @@ fn prepare_arms(
                 table: arm.overrides.clone(),
             },
         ];
-        let loaded =
-            LoadedScenario::from_file_layered(&base.join(&arm.scenario), &layers, overrides)?;
-        let setup = RunSetup::prepare(loaded)?;
+        let template = base.join(&arm.scenario);
+        let loaded = LoadedScenario::from_file_layered(&template, &layers, overrides)?;
+        // A refused value the campaign file set (and no --set after it) is blamed on the
+        // campaign file's key, not on the template that never held it.
+        let setup = RunSetup::prepare(loaded).map_err(|e| match e.blamed_override(overrides) {
+            Some(_) => e,
+            None => super::load::blame_layer(e, &layers, &template),
+        })?;
         let sc = setup.scenario();
         let n = setup.layout.n_joints();
         if let Some(&j) = arm.joints.iter().find(|&&j| j == 0 || j > n) {
