@@ -111,6 +111,8 @@ fn kind_of(meta: &std::fs::Metadata) -> &'static str {
     }
     if meta.is_dir() {
         "a folder"
+    } else if meta.is_file() {
+        "a file"
     } else {
         "not a file"
     }

@@ -76,7 +76,13 @@ fn counts_beyond_their_bounds_are_refused_before_any_work() {
         ),
         (
             // A huge restart count once panicked (capacity overflow) after minutes of fits.
-            vec!["run", "--set", "gp.restarts=9000000000000000000", "--out", "o"],
+            vec![
+                "run",
+                "--set",
+                "gp.restarts=9000000000000000000",
+                "--out",
+                "o",
+            ],
             vec!["--set gp.restarts", "1..=100"],
         ),
         (
@@ -1311,4 +1317,55 @@ fn an_error_prints_its_cause_once() {
     assert_eq!(o.status.code(), Some(2), "{stderr}");
     assert!(stderr.contains("nosuch.toml"), "{stderr}");
     assert_eq!(stderr.matches("os error 2").count(), 1, "{stderr}");
+}
+
+/// Messages that once named the wrong thing (a new user's trial, 2026-12-06): an unknown key
+/// under a table given by `--set` names the `--set`; an output path that is a file or a folder
+/// says which; a calibration file the scenario names is blamed on the scenario's key.
+#[test]
+fn messages_name_what_is_wrong() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    refused(
+        &["run", "--set", "nosuch.key=1", "--out", "o"],
+        &["--set nosuch.key", "unknown field `nosuch`"],
+        d,
+        "o",
+    );
+    std::fs::write(d.join("file.toml"), "").unwrap();
+    refused(
+        &["run", "--set", "duration=1", "--out", "file.toml"],
+        &["file.toml", "is a file, not a folder"],
+        d,
+        "o",
+    );
+    std::fs::create_dir(d.join("folder")).unwrap();
+    let o = aift(&["gen-arm", "--seed", "3", "--out", "folder"], d);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("is a folder") && !stderr.contains("--force"),
+        "{stderr}"
+    );
+    std::fs::write(d.join("not-a-calibration.json"), "nonsense").unwrap();
+    refused(
+        &[
+            "run",
+            "--method",
+            "pl-detect",
+            "--set",
+            "detector.calibration=\"not-a-calibration.json\"",
+            "--set",
+            "duration=1",
+            "--out",
+            "o",
+        ],
+        &[
+            "--set detector.calibration",
+            "`detector.calibration`",
+            "not a calibration",
+        ],
+        d,
+        "o",
+    );
 }

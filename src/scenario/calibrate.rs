@@ -211,7 +211,15 @@ pub fn calibration_for(
             .map(|rel| setup.loaded.resolve(rel))
     });
     if let Some(path) = path {
-        let cal = load_calibration(setup, &path)?;
+        // A file the scenario names: the error names the scenario and its key as well.
+        let cal = load_calibration(setup, &path).map_err(|e| match explicit {
+            Some(_) => e,
+            None => ScenarioError::Invalid {
+                path: setup.loaded.path.clone(),
+                field: "detector.calibration".into(),
+                message: e.to_string(),
+            },
+        })?;
         return Ok(Some((cal, CalibrationOrigin::File(path))));
     }
     let runs = setup.scenario().detector.calibration_runs;

@@ -265,8 +265,11 @@ pub fn parse_scenario_layered(
     serde_path_to_error::deserialize(toml::Value::Table(table)).map_err(|e| {
         let key = e.path().to_string();
         let message = e.into_inner().to_string();
-        if let Some((_, layer)) = layered.iter().rev().find(|(k, _)| about(&key, k))
-            && !keys.iter().any(|k| about(&key, k))
+        // The key the error is about, or a table above it (an unknown field is reported at
+        // the table that does not have it: `--set nosuch.key=1` fails at `nosuch`).
+        let touches = |k: &str| about(&key, k) || (!key.is_empty() && about(k, &key));
+        if let Some((_, layer)) = layered.iter().rev().find(|(k, _)| touches(k))
+            && !keys.iter().any(|k| touches(k))
         {
             return ScenarioError::Parse {
                 path: layer.file.clone(),
@@ -279,12 +282,7 @@ pub fn parse_scenario_layered(
                 ),
             };
         }
-        match keys
-            .iter()
-            .zip(overrides)
-            .rev()
-            .find(|(k, _)| about(&key, k))
-        {
+        match keys.iter().zip(overrides).rev().find(|(k, _)| touches(k)) {
             Some((_, item)) => ScenarioError::Override {
                 key: item
                     .split_once('=')

@@ -55,7 +55,7 @@ pub enum ScenarioError {
     File(#[from] FsError),
     #[error("{path}: {message}")]
     Parse { path: PathBuf, message: String },
-    #[error("{path}: `{field}` {message}")]
+    #[error("{path}: {} {message}", quoted_field(field))]
     Invalid {
         path: PathBuf,
         field: String,
@@ -82,6 +82,16 @@ pub enum ScenarioError {
     },
     #[error("{path}: {message}")]
     Calibration { path: PathBuf, message: String },
+}
+
+/// A key in backticks (`faults[0].start`); a phrase that is not one (init's "the end effector
+/// ...", a campaign's "cell `x` of arm y: ...") as it is.
+fn quoted_field(field: &str) -> String {
+    if field.contains(' ') || field.contains('`') {
+        field.to_string()
+    } else {
+        format!("`{field}`")
+    }
 }
 
 impl ScenarioError {

@@ -399,7 +399,7 @@ fn replay(args: ReplayArgs) -> Result<(), Failure> {
         }
     })?;
     let dt = setup.scenario().dt;
-    let calibration = calibration_for(&setup, &[method], args.calib.as_ref())?;
+    let calibration = calibration_for(&setup, &[method], args.calib.as_ref(), &args.set)?;
     let (result, info) =
         run_files::replay_staged(&staged, &setup, method, seed, calibration.as_deref(), &log)
             .map_err(report_failure)?;
@@ -557,13 +557,14 @@ fn gen_arm(args: GenArmArgs) -> Result<(), Failure> {
         out!("{text}");
         return Ok(());
     };
+    // Refuses a folder, a device or a path ending in `/` before the question of --force.
+    let staged = stage(&out, OutputKind::File, true)?;
     if out.exists() && !args.force {
         return Err(bad_input(anyhow!(
             "{} exists; pass --force to replace it",
             out.display()
         )));
     }
-    let staged = stage(&out, OutputKind::File, true)?;
     staged.commit_bytes(text.as_bytes()).map_err(file_failure)?;
     errln!(
         "wrote {} (seed {}); next: `aift init --urdf {} --out SCENARIO.toml`",
@@ -740,6 +741,7 @@ fn calibration_for(
     setup: &RunSetup,
     methods: &[Method],
     calib: Option<&PathBuf>,
+    overrides: &[String],
 ) -> Result<Option<Arc<Calibration>>, Failure> {
     for &m in methods {
         setup.check_method(m).map_err(bad_input)?;
@@ -758,7 +760,7 @@ fn calibration_for(
     let dir = cache_dir();
     let found =
         calibrate::calibration_for(setup, methods, calib.map(PathBuf::as_path), dir.as_deref())
-            .map_err(bad_input)?;
+            .map_err(|e| scenario_failure(e, overrides))?;
     let runs = setup.scenario().detector.calibration_runs;
     Ok(found.map(|(cal, origin)| {
         match origin {
@@ -820,7 +822,7 @@ fn run(args: RunArgs) -> Result<(), Failure> {
     let mut setup = prepare_loaded(loaded, &args.scenario.set)?;
     setup.loaded.scenario.precision.method = method;
     setup.loaded.scenario.seed = seed;
-    let calibration = calibration_for(&setup, &[method], args.calib.as_ref())?;
+    let calibration = calibration_for(&setup, &[method], args.calib.as_ref(), &args.scenario.set)?;
     let run = scenario::Run::new(&setup, method)
         .seed(seed)
         .calibration(calibration.as_deref());
@@ -963,7 +965,7 @@ fn table(args: TableArgs) -> Result<(), Failure> {
     check_input_file("--calib", args.calib.as_ref())?;
     let staged = stage(&dir, OutputKind::Folder, args.force)?;
     let setup = prepare_loaded(loaded, &args.scenario.set)?;
-    let calibration = calibration_for(&setup, &methods, args.calib.as_ref())?;
+    let calibration = calibration_for(&setup, &methods, args.calib.as_ref(), &args.scenario.set)?;
     let bar = indicatif::ProgressBar::new((methods.len() * seeds.len()) as u64);
     if !std::io::IsTerminal::is_terminal(&std::io::stderr()) {
         bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
@@ -1100,7 +1102,7 @@ fn bench(args: BenchArgs) -> Result<(), Failure> {
     };
     check_input_file("--calib", args.calib.as_ref())?;
     let setup = prepare_loaded(loaded, &args.scenario.set)?;
-    let calibration = calibration_for(&setup, &[method], args.calib.as_ref())?;
+    let calibration = calibration_for(&setup, &[method], args.calib.as_ref(), &args.scenario.set)?;
     let figures = scenario::bench::bench(&setup, method, calibration.as_deref(), args.ticks)
         .map_err(bad_input)?;
     outln!("scenario: {}", setup.scenario().name);
