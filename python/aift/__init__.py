@@ -39,6 +39,7 @@ __all__ = [
     "report",
     "merge",
     "check_urdf",
+    "gen_arm",
     "init",
     "calibrate",
     "train_gp",
@@ -258,6 +259,18 @@ def merge(shards: Sequence, out, *, force: bool = False) -> Rows:
 def check_urdf(path, ee: Optional[str] = None, *, balance_inertia: bool = False) -> dict:
     """The arm of a URDF file, as ``aift check-urdf --json`` prints it."""
     return json.loads(_aift.check_urdf(os.fspath(path), ee, balance_inertia))
+
+
+def gen_arm(seed: int, *, joints=(2, 7), out=None) -> str:
+    """A random serial arm drawn from ``seed`` (as ``aift gen-arm``): its URDF text, the same
+    bytes for the same seed. ``joints`` is a count or (fewest, most), at most 12 (docs/arms.md,
+    "Generated arms"). With ``out``, the text is also written to that file."""
+    lo, hi = (joints, joints) if isinstance(joints, int) else tuple(joints)
+    text = _aift.gen_arm(seed, lo, hi)
+    if out is not None:
+        with open(os.fspath(out), "w", encoding="utf-8") as f:
+            f.write(text)
+    return text
 
 
 def init(urdf, *, name: str = "scenario", ee: Optional[str] = None, balance_inertia: bool = False) -> Scenario:

@@ -1306,6 +1306,18 @@ fn check_urdf(path: PathBuf, ee: Option<String>, balance_inertia: bool) -> PyRes
     Ok(aift::arm::describe_arm(&model, &path, ee.as_deref()).to_string())
 }
 
+/// A random serial arm drawn from `seed` with `min_joints..=max_joints` joints (as `aift
+/// gen-arm`): the URDF text, the same bytes for the same seed.
+#[pyfunction]
+#[pyo3(signature = (seed, min_joints = 2, max_joints = 7))]
+fn gen_arm(seed: u64, min_joints: usize, max_joints: usize) -> PyResult<String> {
+    aift::arm::generate_arm(&aift::arm::GenerateOptions {
+        seed,
+        joints: (min_joints, max_joints),
+    })
+    .map_err(|e| bad(aift::error_chain(&e)))
+}
+
 /// A scenario derived from any URDF (as `aift init`): the TOML text, naming the URDF as
 /// `urdf_in_scenario` (default: its path as given).
 #[pyfunction]
@@ -1420,6 +1432,7 @@ fn _aift(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(report, m)?)?;
     m.add_function(wrap_pyfunction!(check_urdf, m)?)?;
     m.add_function(wrap_pyfunction!(init_scenario, m)?)?;
+    m.add_function(wrap_pyfunction!(gen_arm, m)?)?;
     m.add_function(wrap_pyfunction!(calibrate_to, m)?)?;
     m.add_function(wrap_pyfunction!(train_gp_to, m)?)?;
     m.add_function(wrap_pyfunction!(merge, m)?)?;

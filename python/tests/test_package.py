@@ -308,6 +308,17 @@ def test_check_urdf_init_calibrate_train_gp_as_the_cli(tmp_path, cli, repo):
     assert gp["points"] == 60 and gp["held_out_rms"] > 0
 
 
+def test_gen_arm_writes_the_bytes_the_cli_writes(tmp_path, cli):
+    text = aift.gen_arm(4242, joints=(3, 5), out=tmp_path / "arm.urdf")
+    cli("gen-arm", "--seed", "4242", "--joints", "3..5", "--out", tmp_path / "arm_cli.urdf")
+    assert (tmp_path / "arm.urdf").read_bytes() == (tmp_path / "arm_cli.urdf").read_bytes()
+    assert text == (tmp_path / "arm.urdf").read_text()
+    assert aift.gen_arm(4242, joints=(3, 5)) == text
+    assert 3 <= len(aift.check_urdf(tmp_path / "arm.urdf")["joints"]) <= 5
+    with pytest.raises(aift.BadInput):
+        aift.gen_arm(1, joints=13)
+
+
 def test_type_stub_names_what_the_native_module_has():
     import ast
     import pathlib
