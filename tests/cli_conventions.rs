@@ -288,3 +288,31 @@ fn suggested_commands_paste_wrote_lines_name_the_files_and_unused_options_say_so
     assert_eq!(wrote, files.join(", "));
     assert!(d.join("out/.aift-output").is_file());
 }
+
+/// A campaign warns, as `aift run` does, about a template's target that a shorter
+/// `[defaults] duration` leaves after the run's end (it ran silently).
+#[test]
+fn a_campaign_warns_about_a_templates_target_after_the_runs_end() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let template = common::repo("assets/scenarios/paper_healthy.toml");
+    std::fs::write(
+        d.join("c.toml"),
+        format!(
+            "name = \"short\"\nseeds = 1\nmethods = [\"no-ft\"]\nchannels = [\"enc1\"]\n\n\
+             [defaults]\nduration = 3.0\nplant = {{ engine = \"articulated\" }}\n\n\
+             [onsets]\nrest = 1.5\n\n[[arms]]\nname = \"paper\"\nscenario = \"{}\"\n\n\
+             [[kinds]]\nkind = \"freeze\"\nonsets = [\"rest\"]\n",
+            template.display()
+        ),
+    )
+    .unwrap();
+    let o = aift(&["campaign", "c.toml", "--out", "o"], d);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(0), "{stderr}");
+    assert!(
+        stderr.contains("warning: arm paper (")
+            && stderr.contains("`targets[1].time` 7.5 s is not before the run's end (3 s)"),
+        "{stderr}"
+    );
+}

@@ -274,6 +274,17 @@ fn campaign(args: CampaignArgs) -> Result<(), Failure> {
 
 /// What a campaign (or shard) will run, on stderr.
 fn describe_campaign(campaign: &Campaign, shard: Shard) {
+    // What `aift run` warns about a scenario (a target or fault after the run's end, as a
+    // shorter `[defaults] duration` leaves them), for each arm's template as laid over.
+    for (arm, setup) in campaign.config.arms.iter().zip(&campaign.arms) {
+        for w in &setup.warnings {
+            errln!(
+                "warning: arm {} ({}): {w}",
+                arm.name,
+                setup.loaded.path.display()
+            );
+        }
+    }
     let jobs = campaign.jobs().len() + campaign.reaching_tasks().len();
     errln!(
         "{} cells x {} methods x {} seeds = {} runs{}{}",
