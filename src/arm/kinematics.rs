@@ -57,11 +57,28 @@ impl EndEffector {
         })
     }
 
-    /// Whether the arm is serial up to this end effector: the first joint that does not move it
-    /// (none moves a point on the root; on a tree, the joints of another branch), or `None`
-    /// when every joint does. aift controls serial arms: the camera sees only this point and
-    /// the camera model is a function of every joint.
-    pub fn first_joint_not_moving(&self, model: &ArmModel) -> Option<usize> {
+    /// Why the arm is not serial up to this end effector (on link `link`), or `None` when every
+    /// joint moves it: a point fixed to the world, or a joint on another branch of a tree. aift
+    /// controls serial arms: the camera sees only this point and the camera model is a function
+    /// of every joint.
+    pub fn not_serial(&self, model: &ArmModel, link: &str) -> Option<String> {
+        if self.body == 0 {
+            return Some(format!(
+                "link '{link}' is fixed to the world: no joint moves it (choose a link at the \
+                 end of the chain)"
+            ));
+        }
+        let joint = &model.joints[self.first_joint_not_moving(model)?];
+        Some(format!(
+            "joint '{}' does not move link '{link}': the arm branches at link '{}' and aift \
+             controls serial arms (make the other branch's joints fixed, e.g. a gripper's \
+             fingers, or choose an end effector that every joint moves)",
+            joint.name, model.bodies[joint.parent_body].link
+        ))
+    }
+
+    /// The first joint that does not move this end effector, if any.
+    fn first_joint_not_moving(&self, model: &ArmModel) -> Option<usize> {
         let mut moves = vec![false; model.joints.len()];
         let mut body = self.body;
         while body != 0 {

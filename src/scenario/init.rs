@@ -305,31 +305,14 @@ fn check_serial(
     } else {
         format!("the end effector '{ee_name}' (chosen by init; --ee picks another)")
     };
-    if ee.body == 0 {
-        return Err(ScenarioError::Invalid {
+    match ee.not_serial(model, ee_name) {
+        Some(message) => Err(ScenarioError::Invalid {
             path: urdf.to_path_buf(),
             field,
-            message: format!(
-                "link '{ee_name}' is fixed to the world: no joint moves it (choose a link at the \
-                 end of the chain)"
-            ),
-        });
+            message,
+        }),
+        None => Ok(()),
     }
-    if let Some(j) = ee.first_joint_not_moving(model) {
-        let joint = &model.joints[j];
-        let at = &model.bodies[joint.parent_body].link;
-        return Err(ScenarioError::Invalid {
-            path: urdf.to_path_buf(),
-            field,
-            message: format!(
-                "joint '{}' does not move link '{ee_name}': the arm branches at link '{at}' \
-                 and aift controls serial arms (make the other branch's joints fixed, e.g. a \
-                 gripper's fingers, or choose an end effector that every joint moves)",
-                joint.name
-            ),
-        });
-    }
-    Ok(())
 }
 
 /// The start and the two targets, and which joints start mid-range.

@@ -350,29 +350,14 @@ fn end_effector(loaded: &LoadedScenario, model: &ArmModel) -> Result<EndEffector
         }
     })?;
     // aift controls serial arms: every joint must move the end effector.
-    if let Some(j) = ee.first_joint_not_moving(model) {
-        let joint = &model.joints[j];
-        let message = if ee.body == 0 {
-            format!(
-                "link '{}' is fixed to the world: no joint moves it (choose a link at the end \
-                 of the chain)",
-                robot.ee_link
-            )
-        } else {
-            format!(
-                "joint '{}' does not move link '{}': the arm branches at link '{}' and aift \
-                 controls serial arms (make the other branch's joints fixed, e.g. a gripper's \
-                 fingers, or choose an end effector that every joint moves)",
-                joint.name, robot.ee_link, model.bodies[joint.parent_body].link
-            )
-        };
-        return Err(ScenarioError::Invalid {
+    match ee.not_serial(model, &robot.ee_link) {
+        Some(message) => Err(ScenarioError::Invalid {
             path: loaded.path.clone(),
             field: "robot.ee_link".into(),
             message,
-        });
+        }),
+        None => Ok(ee),
     }
-    Ok(ee)
 }
 
 /// The GP's training box: given, or the start and targets widened by the margin.

@@ -1308,7 +1308,8 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
         },
     )?;
     file.write_all(line.as_bytes()).map_err(writing)?;
-    file.sync_all().map_err(writing)?;
+    drop(file);
+    // The commit syncs the staged file before it moves it into place.
     staged.commit().map_err(file_failure)?;
     outln!(
         "wrote {} rows ({} joints, {} s at dt {}) to {}",
