@@ -165,6 +165,36 @@ fn silent_wrong_results_become_errors_or_warnings() {
         d,
         "o",
     );
+    // A scenario for a 3-joint arm without `[controller.gains]`: the default gains are the paper
+    // arm's 2 joints, and the message says so and where gains come from.
+    let no_gains = d.join("no_gains.toml");
+    let text = std::fs::read_to_string(&spatial).unwrap();
+    let start = text
+        .find("[controller.gains]")
+        .expect("the scenario has gains");
+    let end = start + text[start..].find("\n\n").unwrap_or(text.len() - start);
+    let mut cut = text.clone();
+    cut.replace_range(start..end, "");
+    let cut = cut.replace(
+        "urdf = \"",
+        &format!(
+            "urdf = \"{}/",
+            Path::new(&spatial).parent().unwrap().display()
+        ),
+    );
+    std::fs::write(&no_gains, cut).unwrap();
+    refused(
+        &["run", no_gains.to_str().unwrap(), "--out", "o"],
+        &[
+            "no_gains.toml",
+            "controller.gains",
+            "paper's 2-joint arm",
+            "3 joints",
+            "aift init",
+        ],
+        d,
+        "o",
+    );
     // Two identical methods would claim twice the seeds.
     refused(
         &["table", "--methods", "no-ft,no-ft", "--out", "o"],

@@ -629,6 +629,12 @@ fn typos_that_change_the_arm_are_warned_about() {
         r#"efort="10""#,
         &["joint 'j1'", "<limit>", "no `effort`", "no effort limit"],
     );
+    // An explicit zero effort is read as no limit, and said so.
+    warned(
+        r#"effort="10""#,
+        r#"effort="0""#,
+        &["joint 'j1'", "<limit>", "effort=\"0\"", "no effort limit"],
+    );
     let typo = good().replacen("<axis", "<axsi", 1);
     let line = 1 + typo[..typo.find("<axsi").unwrap()].matches('\n').count();
     warned(

@@ -434,6 +434,20 @@ pub(crate) fn scan(text: &str, path: &Path) -> Result<Scan, ArmError> {
                     version.1
                 ));
             }
+            // An explicit effort="0" would hold the joint without torque; it is read as no
+            // limit (descriptions write 0 for "unspecified"), and said so.
+            if below == ["joint", "limit"]
+                && attributes
+                    .iter()
+                    .any(|(k, v)| k == "effort" && v.trim().parse::<f64>() == Ok(0.0))
+            {
+                warn(format!(
+                    "{}: <limit> (line {line}) has effort=\"0\", read as no effort limit (a \
+                     joint with zero torque could not move); give the motor's limit to \
+                     saturate the torque",
+                    what()
+                ));
+            }
         }
         if depth == 2 {
             owner = (name == "link" || name == "joint").then(|| {

@@ -82,6 +82,17 @@ impl ControlConfig {
         if let Some(k) = self.kappa_u {
             positive("kappa_u", k)?;
         }
+        if n_joints != 2 && self.gains == PidGains::paper() {
+            // Without `[controller.gains]` the paper arm's gains apply, which fit 2 joints only.
+            return Err(crate::SettingError::new(
+                "gains",
+                format!(
+                    "is absent, and the default gains are the paper's 2-joint arm's; this arm has \
+                     {n_joints} joints: give kp, kd, ki and integral_limit with {n_joints} entries \
+                     each (`aift init <urdf>` writes them for an arm)"
+                ),
+            ));
+        }
         self.gains.validate(n_joints).map_err(|e| e.within("gains"))
     }
 }

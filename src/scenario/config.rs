@@ -198,7 +198,7 @@ pub struct GpConfig {
     pub seed: u64,
     /// A saved model to load instead of training (relative to the scenario file).
     pub model: Option<PathBuf>,
-    /// Hyperparameter-fit restarts (1 to 100; each is one fit from a new start).
+    /// Hyperparameter-fit restarts (each is one fit from a new start).
     #[schemars(range(min = 1, max = 100))]
     pub restarts: usize,
 }
