@@ -203,3 +203,61 @@ fn the_authors_matlab_form_is_their_update_line_by_line() {
     .unwrap_err();
     assert_eq!(e.field, "prediction");
 }
+
+/// `prior = "switched"` is the fixed prior while every tachometer's precision is at least the
+/// prior's P_mu', and the propagated prior from the first tick one is below it (the propagated
+/// prior starts from the last posterior covariance, which the fixed prior's updates also
+/// compute): bit for bit a fixed-prior belief switched by hand at that tick, and back once the
+/// tachometer returns.
+#[test]
+fn the_switched_prior_is_fixed_until_a_tachometer_is_dropped_then_propagated() {
+    use aift::estimation::uaic::PriorMode;
+    let gp = gp();
+    let switched = UaicConfig {
+        prior: PriorMode::Switched,
+        ..UaicConfig::default()
+    };
+    let (_, pv) = switched.prior_precisions(1e-3);
+    let mut a = Uaic::new(switched, observation(gp.clone()), 1e-3);
+    let mut b = Uaic::new(UaicConfig::default(), observation(gp), 1e-3);
+    let mut r = readings();
+    for k in 0..400u32 {
+        // Tachometer 2 (channel 3): nominal, then just below P_mu', then 0, then nominal again.
+        let mut w = PRECISIONS;
+        let expect = match k {
+            0..100 => PriorMode::Fixed,
+            100..200 => {
+                w[3] = 0.999 * pv;
+                PriorMode::Propagated
+            }
+            200..300 => {
+                w[3] = 0.0;
+                PriorMode::Propagated
+            }
+            _ => PriorMode::Fixed,
+        };
+        // At P_mu' exactly it stays fixed.
+        if k == 50 {
+            w[3] = pv;
+        }
+        b.set_prior(expect);
+        // Readings that move: the joints turn at 0.5 and -0.3 rad/s.
+        let t = f64::from(k) * 1e-3;
+        r.values[0] = Some(-0.61 + 0.5 * t);
+        r.values[1] = Some(0.22 - 0.3 * t);
+        r.values[2] = Some(0.5);
+        r.values[3] = Some(-0.3);
+        a.step(&r, &w);
+        b.step(&r, &w);
+        assert_eq!(a.prior_in_force(), expect, "tick {k}");
+        assert_eq!(a.belief(), b.belief(), "tick {k}");
+    }
+    // Without the Gauss-Newton update it is refused, naming the key.
+    let bad = UaicConfig {
+        prior: PriorMode::Switched,
+        update: UpdateScheme::Gradient,
+        ..UaicConfig::default()
+    };
+    let e = bad.validate(1e-3).unwrap_err().to_string();
+    assert!(e.contains("prior") && e.contains("switched"), "{e}");
+}

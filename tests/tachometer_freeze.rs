@@ -55,9 +55,12 @@ fn no_fault_tolerance_survives_and_every_method_returns_a_result() {
 /// amplifies, and the elbow ends off (0.2 rad until the model-error state was carried as a
 /// parameter error, 2026-12-05; 0.016 rad since); with `hybrid.prior =
 /// "fixed-until-tachometer-fails"` the belief takes the propagated prior once the tachometer is
-/// held failed and the arm ends within 0.005 rad, several times closer.
+/// held failed and the arm ends within 0.005 rad, several times closer. The oracle, which drops
+/// the tachometer at the fault's first tick, swings the elbow with the fixed prior (0.40 rad off
+/// at the end, measured at seed 1) and holds it with `belief.prior = "switched"` (0.0012 rad):
+/// dropping a velocity sensor is safe only with a prior that propagates what the belief knows.
 #[test]
-fn the_hybrid_holds_an_undamped_ur5_through_a_tachometer_freeze_with_the_switched_prior() {
+fn an_undamped_ur5_holds_through_a_tachometer_freeze_with_the_switched_prior() {
     use aift::estimation::hybrid::HybridPrior;
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("ur5.toml");
@@ -117,4 +120,28 @@ fn the_hybrid_holds_an_undamped_ur5_through_a_tachometer_freeze_with_the_switche
     );
     assert!(s.max_final_error < 0.005, "{:?}", s.final_error_per_joint);
     assert_eq!(s.false_alarms, 0);
+    // The oracle, fixed against switched prior.
+    let loaded = aift::scenario::LoadedScenario::from_file(
+        &path,
+        &[
+            "plant.engine=\"articulated\"".to_string(),
+            "belief.prior=\"switched\"".to_string(),
+        ],
+    )
+    .unwrap();
+    assert_eq!(
+        loaded.scenario.belief.prior,
+        aift::estimation::uaic::PriorMode::Switched
+    );
+    let mut oracle_switched = fixed.clone();
+    oracle_switched.loaded = loaded;
+    let (f, _) = run_recorded(&fixed, Method::Oracle, 1, None);
+    let (s, _) = run_recorded(&oracle_switched, Method::Oracle, 1, None);
+    eprintln!(
+        "ur5 tach3 freeze, oracle: fixed prior {:?}; switched {:?}",
+        f.final_error_per_joint, s.final_error_per_joint
+    );
+    assert!(f.max_final_error > 0.1, "{:?}", f.final_error_per_joint);
+    assert!(s.max_final_error < 0.005, "{:?}", s.final_error_per_joint);
+    assert_eq!(s.outcome.name(), "completed");
 }

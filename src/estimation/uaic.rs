@@ -53,6 +53,12 @@ pub enum PriorMode {
     /// last update's Laplace posterior covariance H^-1 and Q the white-acceleration process
     /// noise of the acceleration bound (docs/method.md, "Propagated prior").
     Propagated,
+    /// Fixed while every tachometer's precision in force is at least the prior's velocity
+    /// precision P_mu', propagated while one is below it (a tachometer dropped or
+    /// down-weighted): without its tachometer a joint's velocity belief is the prior's, and the
+    /// fixed P_mu' then closes a loop with the controller's damping that can oscillate
+    /// (docs/method.md, "Propagated prior", a dropped tachometer).
+    Switched,
 }
 
 /// Which state prediction the prior uses.
@@ -98,9 +104,10 @@ pub struct UaicConfig {
     /// starts at the first (noisy) readings, and a full-strength prior would hold that noise
     /// for about P_mu / encoder precision ticks. 0 disables the ramp.
     pub prior_warmup_ticks: u64,
-    /// `fixed` (P_mu, P_mu') or `propagated` (a Kalman filter's prior precision, its process
-    /// noise from `acceleration_bound`; needs `update = "gauss-newton"`). Every u-AIC method but
-    /// `hybrid`, which takes `hybrid.prior`.
+    /// `fixed` (P_mu, P_mu'), `propagated` (a Kalman filter's prior precision, its process
+    /// noise from `acceleration_bound`) or `switched` (fixed while every tachometer's precision
+    /// is at least P_mu', propagated while one is below it); the last two need `update =
+    /// "gauss-newton"`. Every u-AIC method but `hybrid`, which takes `hybrid.prior`.
     pub prior: PriorMode,
 }
 
@@ -162,10 +169,17 @@ impl UaicConfig {
         positive("kappa_mu", self.kappa_mu)?;
         let (pm, pv) = self.prior_precisions(dt);
         positive("prior_position_precision", pm)?;
-        if self.prior == PriorMode::Propagated && self.update != UpdateScheme::GaussNewton {
+        if self.prior != PriorMode::Fixed && self.update != UpdateScheme::GaussNewton {
             return Err(crate::SettingError::new(
                 "prior",
-                "\"propagated\" needs update = \"gauss-newton\"",
+                format!(
+                    "\"{}\" needs update = \"gauss-newton\"",
+                    if self.prior == PriorMode::Propagated {
+                        "propagated"
+                    } else {
+                        "switched"
+                    }
+                ),
             ));
         }
         positive("prior_velocity_precision", pv)?;
@@ -188,6 +202,8 @@ impl UaicConfig {
 /// The u-AIC's belief.
 pub struct Uaic {
     config: UaicConfig,
+    /// The prior in force this tick: `config.prior`, or with `switched` the one it picks.
+    prior_in_force: PriorMode,
     /// The state prior's precisions P_mu, P_mu' at this tick length.
     prior_position_precision: f64,
     prior_velocity_precision: f64,
@@ -236,6 +252,10 @@ impl Uaic {
         let r = layout.camera_outputs();
         let (pm, pv) = config.prior_precisions(dt);
         Self {
+            prior_in_force: match config.prior {
+                PriorMode::Switched => PriorMode::Fixed,
+                p => p,
+            },
             config,
             prior_position_precision: pm,
             prior_velocity_precision: pv,
@@ -273,6 +293,14 @@ impl Uaic {
     /// last update's posterior covariance).
     pub fn set_prior(&mut self, prior: PriorMode) {
         self.config.prior = prior;
+        if prior != PriorMode::Switched {
+            self.prior_in_force = prior;
+        }
+    }
+
+    /// The prior in force at the last update (`fixed` or `propagated`).
+    pub fn prior_in_force(&self) -> PriorMode {
+        self.prior_in_force
     }
 
     /// The belief x = [mu, mu'].
@@ -412,7 +440,7 @@ impl Uaic {
     /// Fills the prior's Hessian (A' P_x A) into `self.hessian`.
     fn prior_hessian(&mut self) {
         let n = self.layout.n_joints();
-        if self.config.prior == PriorMode::Propagated {
+        if self.prior_in_force == PriorMode::Propagated {
             self.hessian.copy_from(&self.prior_info);
             return;
         }
@@ -524,6 +552,18 @@ impl Uaic {
         }
         let dt = self.dt;
         self.report.precisions_used.copy_from_slice(precisions);
+        if self.config.prior == PriorMode::Switched {
+            let pv = self.prior_velocity_precision;
+            let dropped = self
+                .layout
+                .group_range(crate::sensors::SensorGroup::Tachometers)
+                .any(|c| precisions[c] < pv);
+            self.prior_in_force = if dropped {
+                PriorMode::Propagated
+            } else {
+                PriorMode::Fixed
+            };
+        }
 
         // Prediction x_hat = A x_{k-1} and the innovations against it.
         for i in 0..n {
@@ -549,7 +589,7 @@ impl Uaic {
                     .camera(&self.point.as_slice()[..n], &mut g, &mut self.jac);
             }
         }
-        if self.config.prior == PriorMode::Propagated {
+        if self.prior_in_force == PriorMode::Propagated {
             self.propagate_prior(precisions);
         }
         self.prior_hessian();
@@ -646,7 +686,7 @@ impl Uaic {
             }
         }
         let mut ex = std::mem::take(&mut self.ex);
-        if self.config.prior == PriorMode::Propagated {
+        if self.prior_in_force == PriorMode::Propagated {
             // e_x = x - x_hat; 1/2 (e_x' Lambda e_x - ln |Lambda|).
             for i in 0..2 * n {
                 ex[i] = self.x[i] - self.x_hat[i];
