@@ -766,6 +766,37 @@ fn merge_checks_every_record_against_its_config() {
         );
         assert!(!d.join("m").exists(), "{name}");
     }
+    // A diverged run is a result, not a damaged record: its non-finite numbers are written as
+    // null (JSON has no NaN) and read back (merge refused such a shard until 2026-12-06).
+    let diverged = edited_shard(d, "s1", "diverged", |v| {
+        let r = &mut v["runs"][0];
+        r["mse_post"] = serde_json::Value::Null;
+        r["max_final_error"] = serde_json::Value::Null;
+        r["outcome"] = "diverged".into();
+        r["verdict"] = "diverged".into();
+        let t = &mut v["reaching"][0];
+        t["belief_rmse"] = serde_json::Value::Null;
+        t["outcome"] = "diverged".into();
+    });
+    let o = aift(&["merge", &diverged, "s2", "--out", "with_diverged"], d);
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let merged: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(d.join("with_diverged/records.json")).unwrap(),
+    )
+    .unwrap();
+    assert!(
+        merged["runs"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|r| r["verdict"] == "diverged" && r["mse_post"].is_null()),
+        "{merged}"
+    );
     let staging: Vec<_> = std::fs::read_dir(d)
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())

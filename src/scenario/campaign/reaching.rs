@@ -37,11 +37,14 @@ pub struct ReachingRun {
     /// run that did not complete describe only the ticks it ran.
     #[serde(default = "completed")]
     pub outcome: String,
+    #[serde(deserialize_with = "super::run::number_or_null")]
     pub belief_rmse: f64,
     /// Largest overshoot beyond the target along the step, over joints (% of the step).
+    #[serde(deserialize_with = "super::run::number_or_null")]
     pub overshoot: f64,
     /// Time after which every joint stays within 0.5 % of its step of the target (s; None: never).
     pub settling_time: Option<f64>,
+    #[serde(deserialize_with = "super::run::number_or_null")]
     pub steady_state_error: f64,
     /// Sensor alarms plus the method's own actuator alarms (none is at fault in a healthy
     /// reaching task), as the fault cells count them.

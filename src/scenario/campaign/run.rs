@@ -37,6 +37,14 @@ impl Verdict {
     }
 }
 
+/// A number of the records that a diverged run leaves not finite: JSON has no NaN, so serde
+/// writes it as `null`, and this reads `null` back as NaN (without it, a journal or a shard
+/// holding a diverged run could not be read back: resume stopped at that run, merge refused the
+/// shard). An infinity is written as `null` too and reads back as NaN.
+pub(crate) fn number_or_null<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
+}
+
 /// One run of the campaign: everything its tables need, in full precision (shards carry these).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -49,7 +57,9 @@ pub struct CampaignRun {
     pub verdict: Verdict,
     /// MSE of (mu - q) of the faulty joints (every joint for camera faults and healthy cells)
     /// from the first fault's start (healthy cells: over the run).
+    #[serde(deserialize_with = "number_or_null")]
     pub mse_post: f64,
+    #[serde(deserialize_with = "number_or_null")]
     pub max_final_error: f64,
     pub runaway: bool,
     /// Whether the first fault was detected (None: healthy cell).
@@ -58,6 +68,7 @@ pub struct CampaignRun {
     pub isolation_correct: Option<bool>,
     pub false_alarms: usize,
     /// Simulated time (h).
+    #[serde(deserialize_with = "number_or_null")]
     pub hours: f64,
     /// Time from the first fault's start until the belief error is back within 3 sigma of its
     /// pre-fault level for good (None: not back by the end, or a healthy cell).
@@ -608,6 +619,39 @@ pub fn run_campaign_with(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A diverged run's NaN numbers are written as null and read back as NaN, and the record
+    /// writes the same bytes again (journals and shards hold diverged runs).
+    #[test]
+    fn a_diverged_run_round_trips_through_its_json() {
+        let run = CampaignRun {
+            job: 3,
+            cell: 1,
+            method: MethodId::from_name("hybrid"),
+            seed: 2,
+            outcome: "diverged".into(),
+            verdict: Verdict::Diverged,
+            mse_post: f64::NAN,
+            max_final_error: f64::NAN,
+            runaway: false,
+            detected: Some(false),
+            delay: None,
+            isolation_correct: None,
+            false_alarms: 0,
+            hours: 1e-3,
+            recover_time: None,
+        };
+        let text = serde_json::to_string(&run).unwrap();
+        assert!(text.contains("\"mse_post\":null"), "{text}");
+        let back: CampaignRun = serde_json::from_str(&text).unwrap();
+        assert!(back.mse_post.is_nan() && back.max_final_error.is_nan());
+        assert_eq!(back.hours, 1e-3);
+        assert_eq!(serde_json::to_string(&back).unwrap(), text);
+        let reaching = r#"{"job":9,"arm":0,"task":0,"method":"no-ft","outcome":"diverged","belief_rmse":null,"overshoot":null,"settling_time":null,"steady_state_error":null,"false_alarms":0}"#;
+        let r: ReachingRun = serde_json::from_str(reaching).unwrap();
+        assert!(r.belief_rmse.is_nan() && r.overshoot.is_nan() && r.steady_state_error.is_nan());
+        assert_eq!(serde_json::to_string(&r).unwrap(), reaching);
+    }
 
     #[test]
     fn shards_partition_the_jobs() {
