@@ -89,21 +89,20 @@ fn an_undamped_ur5_holds_through_a_tachometer_freeze_with_the_switched_prior() {
     let loaded =
         aift::scenario::LoadedScenario::from_file(&path, std::slice::from_ref(&engine)).unwrap();
     let fixed = aift::scenario::RunSetup::prepare(loaded).unwrap();
-    // The option as a user gives it, parsed and validated; the camera model reused.
-    let loaded = aift::scenario::LoadedScenario::from_file(
-        &path,
-        &[
-            engine,
-            "hybrid.prior=\"fixed-until-tachometer-fails\"".to_string(),
-        ],
-    )
-    .unwrap();
+    // An option as a user gives it, parsed and validated; the camera model reused.
+    let with = |set: &str| {
+        let loaded =
+            aift::scenario::LoadedScenario::from_file(&path, &[engine.clone(), set.to_string()])
+                .unwrap();
+        let mut setup = fixed.clone();
+        setup.loaded = loaded;
+        setup
+    };
+    let switched = with("hybrid.prior=\"fixed-until-tachometer-fails\"");
     assert_eq!(
-        loaded.scenario.hybrid.prior,
+        switched.scenario().hybrid.prior,
         HybridPrior::FixedUntilTachometerFails
     );
-    let mut switched = fixed.clone();
-    switched.loaded = loaded;
     let (f, _) = run_recorded(&fixed, Method::Hybrid, 1, None);
     let (s, _) = run_recorded(&switched, Method::Hybrid, 1, None);
     eprintln!(
@@ -121,20 +120,11 @@ fn an_undamped_ur5_holds_through_a_tachometer_freeze_with_the_switched_prior() {
     assert!(s.max_final_error < 0.005, "{:?}", s.final_error_per_joint);
     assert_eq!(s.false_alarms, 0);
     // The oracle, fixed against switched prior.
-    let loaded = aift::scenario::LoadedScenario::from_file(
-        &path,
-        &[
-            "plant.engine=\"articulated\"".to_string(),
-            "belief.prior=\"switched\"".to_string(),
-        ],
-    )
-    .unwrap();
+    let oracle_switched = with("belief.prior=\"switched\"");
     assert_eq!(
-        loaded.scenario.belief.prior,
+        oracle_switched.scenario().belief.prior,
         aift::estimation::uaic::PriorMode::Switched
     );
-    let mut oracle_switched = fixed.clone();
-    oracle_switched.loaded = loaded;
     let (f, _) = run_recorded(&fixed, Method::Oracle, 1, None);
     let (s, _) = run_recorded(&oracle_switched, Method::Oracle, 1, None);
     eprintln!(

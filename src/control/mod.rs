@@ -87,9 +87,9 @@ impl ControlConfig {
             return Err(crate::SettingError::new(
                 "gains",
                 format!(
-                    "is absent, and the default gains are the paper's 2-joint arm's; this arm has \
-                     {n_joints} joints: give kp, kd, ki and integral_limit with {n_joints} entries \
-                     each (`aift init <urdf>` writes them for an arm)"
+                    "are the paper's 2-joint arm's (the defaults when `[controller.gains]` is \
+                     absent); this arm has {n_joints} joints: give kp, kd, ki and integral_limit \
+                     with {n_joints} entries each (`aift init <urdf>` writes them for an arm)"
                 ),
             ));
         }
