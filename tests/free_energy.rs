@@ -214,7 +214,7 @@ fn the_switched_prior_is_fixed_until_a_tachometer_is_dropped_then_propagated() {
     use aift::estimation::uaic::PriorMode;
     let gp = gp();
     let switched = UaicConfig {
-        prior: PriorMode::Switched,
+        prior: Some(PriorMode::Switched),
         ..UaicConfig::default()
     };
     let (_, pv) = switched.prior_precisions(1e-3);
@@ -254,10 +254,22 @@ fn the_switched_prior_is_fixed_until_a_tachometer_is_dropped_then_propagated() {
     }
     // Without the Gauss-Newton update it is refused, naming the key.
     let bad = UaicConfig {
-        prior: PriorMode::Switched,
+        prior: Some(PriorMode::Switched),
         update: UpdateScheme::Gradient,
         ..UaicConfig::default()
     };
     let e = bad.validate(1e-3).unwrap_err().to_string();
     assert!(e.contains("prior") && e.contains("switched"), "{e}");
+    // Absent, the prior is `switched` with the Gauss-Newton update and `fixed` with the
+    // gradient one, which has no posterior covariance to propagate; both validate.
+    let default = UaicConfig::default();
+    assert_eq!(default.prior, None);
+    assert_eq!(default.prior_mode(), PriorMode::Switched);
+    default.validate(1e-3).unwrap();
+    let gradient = UaicConfig {
+        update: UpdateScheme::Gradient,
+        ..UaicConfig::default()
+    };
+    assert_eq!(gradient.prior_mode(), PriorMode::Fixed);
+    gradient.validate(1e-3).unwrap();
 }

@@ -49,7 +49,7 @@ use serde::{Deserialize, Serialize};
 use super::bank::{Floor, HypothesisBank};
 use super::kalman::Ekf;
 use super::models::{ArmTransition, ConstantVelocity, ObservationModel, TransitionModel};
-use super::uaic::{PriorMode, Uaic};
+use super::uaic::{PriorMode, Uaic, UpdateScheme};
 use super::{Estimate, Estimator, EstimatorInput};
 use crate::sensors::{Channel, ChannelLayout, NOISE_FREE_PRECISION};
 
@@ -141,7 +141,7 @@ pub struct HybridConfig {
     /// winner trusted, and the belief lies outside its 3-sigma ellipsoid.
     pub reanchor: bool,
     /// The belief's state prior (the hybrid's own; `belief.prior` sets the other u-AIC
-    /// methods'): the u-AIC's fixed P_mu, P_mu' (the paper's, default), or the propagated prior
+    /// methods'): the u-AIC's fixed P_mu, P_mu' (the paper's), or the propagated prior
     /// (a Kalman filter's covariance; needs `belief.update = "gauss-newton"`). Measured in
     /// docs/method.md, "The hybrid": the propagated prior lowers the belief error of healthy
     /// runs by about a fifth, but it integrates a tachometer's scale error into the position,
@@ -150,8 +150,9 @@ pub struct HybridConfig {
     /// trusts every tachometer, the propagated one while it holds a tachometer failed (without
     /// its tachometer a joint's velocity comes from differences of encoder readings, which the
     /// fixed prior turns into a noisy mu' the PID's damping term amplifies on an undamped arm;
-    /// measured in docs/method.md, "The hybrid").
-    pub prior: HybridPrior,
+    /// measured in docs/method.md, "The hybrid"). Absent: `fixed-until-tachometer-fails` with
+    /// `belief.update = "gauss-newton"`, `fixed` with the gradient update.
+    pub prior: Option<HybridPrior>,
     /// The weight of "stuck at its last reading" in a failed channel's reading model: a failed
     /// reading is, with this probability, the last one again (to within `stuck_width`), else
     /// broad noise. A frozen or stuck sensor repeats its reading exactly, which healthy noise
@@ -219,7 +220,7 @@ impl Default for HybridConfig {
             camera: CameraPrecision::Bank,
             camera_broad: 10.0,
             reanchor: true,
-            prior: HybridPrior::Fixed,
+            prior: None,
             stuck_weight: 0.01,
             stuck_width: 1e-3,
             resync_ticks: 500,
@@ -232,6 +233,16 @@ impl Default for HybridConfig {
 }
 
 impl HybridConfig {
+    /// The state prior a run uses: `prior`, or when it is absent
+    /// `fixed-until-tachometer-fails` with the Gauss-Newton update and `fixed` with the
+    /// gradient one.
+    pub fn prior_mode(&self, update: UpdateScheme) -> HybridPrior {
+        self.prior.unwrap_or(match update {
+            UpdateScheme::GaussNewton => HybridPrior::FixedUntilTachometerFails,
+            UpdateScheme::Gradient => HybridPrior::Fixed,
+        })
+    }
+
     pub fn validate(&self) -> Result<(), crate::SettingError> {
         if !(self.switch > 0.0 && self.switch < 0.5) {
             return Err(crate::SettingError::new("switch", "must be in (0, 0.5)"));
@@ -928,7 +939,9 @@ impl Estimator for Hybrid {
         // that a frozen tachometer at the floor precision would bias mu'.
         let winner = self.bank.most_probable();
         let mut floor = self.floor;
-        if self.config.prior == HybridPrior::FixedUntilTachometerFails {
+        if self.config.prior_mode(self.uaic.config().update)
+            == HybridPrior::FixedUntilTachometerFails
+        {
             let tachometer_failed = self
                 .layout
                 .group_range(crate::sensors::SensorGroup::Tachometers)

@@ -107,8 +107,10 @@ pub struct UaicConfig {
     /// `fixed` (P_mu, P_mu'), `propagated` (a Kalman filter's prior precision, its process
     /// noise from `acceleration_bound`) or `switched` (fixed while every tachometer's precision
     /// is at least P_mu', propagated while one is below it); the last two need `update =
-    /// "gauss-newton"`. Every u-AIC method but `hybrid`, which takes `hybrid.prior`.
-    pub prior: PriorMode,
+    /// "gauss-newton"`. Absent: `switched` with the Gauss-Newton update, `fixed` with the
+    /// gradient one (which has no posterior covariance to propagate). Every u-AIC method but
+    /// `hybrid`, which takes `hybrid.prior`.
+    pub prior: Option<PriorMode>,
 }
 
 /// The default acceleration bound of the state prior (rad/s^2).
@@ -125,12 +127,21 @@ impl Default for UaicConfig {
             prior_position_precision: None,
             prior_velocity_precision: None,
             prior_warmup_ticks: 100,
-            prior: PriorMode::Fixed,
+            prior: None,
         }
     }
 }
 
 impl UaicConfig {
+    /// The state prior a run uses: `prior`, or when it is absent `switched` with the
+    /// Gauss-Newton update and `fixed` with the gradient one.
+    pub fn prior_mode(&self) -> PriorMode {
+        self.prior.unwrap_or(match self.update {
+            UpdateScheme::GaussNewton => PriorMode::Switched,
+            UpdateScheme::Gradient => PriorMode::Fixed,
+        })
+    }
+
     /// The state prior's precisions (P_mu, P_mu') at tick `dt`: as given, else from the
     /// acceleration bound a: P_mu = 1 / (a dt^2 / 2)^2, P_mu' = 1 / (a dt)^2.
     pub fn prior_precisions(&self, dt: f64) -> (f64, f64) {
@@ -169,12 +180,13 @@ impl UaicConfig {
         positive("kappa_mu", self.kappa_mu)?;
         let (pm, pv) = self.prior_precisions(dt);
         positive("prior_position_precision", pm)?;
-        if self.prior != PriorMode::Fixed && self.update != UpdateScheme::GaussNewton {
+        let prior = self.prior_mode();
+        if prior != PriorMode::Fixed && self.update != UpdateScheme::GaussNewton {
             return Err(crate::SettingError::new(
                 "prior",
                 format!(
                     "\"{}\" needs update = \"gauss-newton\"",
-                    if self.prior == PriorMode::Propagated {
+                    if prior == PriorMode::Propagated {
                         "propagated"
                     } else {
                         "switched"
@@ -202,7 +214,9 @@ impl UaicConfig {
 /// The u-AIC's belief.
 pub struct Uaic {
     config: UaicConfig,
-    /// The prior in force this tick: `config.prior`, or with `switched` the one it picks.
+    /// The configured prior (`config.prior_mode()`).
+    prior_mode: PriorMode,
+    /// The prior in force this tick: `prior_mode`, or with `switched` the one it picks.
     prior_in_force: PriorMode,
     /// The state prior's precisions P_mu, P_mu' at this tick length.
     prior_position_precision: f64,
@@ -252,7 +266,8 @@ impl Uaic {
         let r = layout.camera_outputs();
         let (pm, pv) = config.prior_precisions(dt);
         Self {
-            prior_in_force: match config.prior {
+            prior_mode: config.prior_mode(),
+            prior_in_force: match config.prior_mode() {
                 PriorMode::Switched => PriorMode::Fixed,
                 p => p,
             },
@@ -292,7 +307,8 @@ impl Uaic {
     /// Switches the state prior from the next update on (the propagated prior starts from the
     /// last update's posterior covariance).
     pub fn set_prior(&mut self, prior: PriorMode) {
-        self.config.prior = prior;
+        self.config.prior = Some(prior);
+        self.prior_mode = prior;
         if prior != PriorMode::Switched {
             self.prior_in_force = prior;
         }
@@ -552,7 +568,7 @@ impl Uaic {
         }
         let dt = self.dt;
         self.report.precisions_used.copy_from_slice(precisions);
-        if self.config.prior == PriorMode::Switched {
+        if self.prior_mode == PriorMode::Switched {
             let pv = self.prior_velocity_precision;
             let dropped = self
                 .layout

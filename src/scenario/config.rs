@@ -407,12 +407,13 @@ impl Scenario {
         self.kalman.validate().map_err(within("kalman"))?;
         self.hybrid.validate().map_err(within("hybrid"))?;
         self.momentum.validate().map_err(within("momentum"))?;
-        if self.hybrid.prior.may_propagate() && self.belief.update != UpdateScheme::GaussNewton {
+        let hybrid_prior = self.hybrid.prior_mode(self.belief.update);
+        if hybrid_prior.may_propagate() && self.belief.update != UpdateScheme::GaussNewton {
             return Err(SettingError::new(
                 "hybrid.prior",
                 format!(
                     "\"{}\" uses the propagated prior, which needs belief.update = \"gauss-newton\"",
-                    self.hybrid.prior.name()
+                    hybrid_prior.name()
                 ),
             ));
         }

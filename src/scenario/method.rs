@@ -406,7 +406,7 @@ pub fn build(method: Method, ctx: &MethodContext<'_>) -> Result<MethodParts, Sce
         }
         Method::Hybrid => {
             let mut belief = sc.belief.clone();
-            belief.prior = sc.hybrid.prior.initial();
+            belief.prior = Some(sc.hybrid.prior_mode(sc.belief.update).initial());
             let uaic = Uaic::new(belief, observation.clone(), sc.dt);
             let transition = crate::estimation::hybrid::bank_transition(
                 &sc.hybrid,
