@@ -214,9 +214,7 @@ impl UaicConfig {
 /// The u-AIC's belief.
 pub struct Uaic {
     config: UaicConfig,
-    /// The configured prior (`config.prior_mode()`).
-    prior_mode: PriorMode,
-    /// The prior in force this tick: `prior_mode`, or with `switched` the one it picks.
+    /// The prior in force this tick: `config.prior_mode()`, or with `switched` the one it picks.
     prior_in_force: PriorMode,
     /// The state prior's precisions P_mu, P_mu' at this tick length.
     prior_position_precision: f64,
@@ -266,7 +264,6 @@ impl Uaic {
         let r = layout.camera_outputs();
         let (pm, pv) = config.prior_precisions(dt);
         Self {
-            prior_mode: config.prior_mode(),
             prior_in_force: match config.prior_mode() {
                 PriorMode::Switched => PriorMode::Fixed,
                 p => p,
@@ -308,7 +305,6 @@ impl Uaic {
     /// last update's posterior covariance).
     pub fn set_prior(&mut self, prior: PriorMode) {
         self.config.prior = Some(prior);
-        self.prior_mode = prior;
         if prior != PriorMode::Switched {
             self.prior_in_force = prior;
         }
@@ -568,7 +564,7 @@ impl Uaic {
         }
         let dt = self.dt;
         self.report.precisions_used.copy_from_slice(precisions);
-        if self.prior_mode == PriorMode::Switched {
+        if self.config.prior_mode() == PriorMode::Switched {
             let pv = self.prior_velocity_precision;
             let dropped = self
                 .layout
