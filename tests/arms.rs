@@ -350,3 +350,75 @@ fn init_handles_a_pendulum_whose_joints_share_one_origin() {
         "{summary}"
     );
 }
+
+/// `init` says which joints the camera cannot check (issue 24, "sensors nobody else can
+/// check"): on `tests/data/coaxial_wrist.urdf` the end effector ("hand") is the roll joint's
+/// origin, on its axis, so turning it moves nothing the camera sees; `init` names that joint in
+/// the scenario's comments, as a value of the library and in a note on stderr, and lists every
+/// joint's sensitivity. With a tool 0.1 m off the roll axis the camera sees every joint, and
+/// nothing is named.
+#[test]
+fn init_names_the_joints_the_camera_cannot_see() {
+    use aift::scenario::init::{InitOptions, init_scenario_noted};
+    let tmp = tempfile::tempdir().unwrap();
+    let on_axis = common::repo("tests/data/coaxial_wrist.urdf");
+    let text = std::fs::read_to_string(&on_axis).unwrap();
+    let tool = text.replacen(
+        "</robot>",
+        r#"<joint name="tool_mount" type="fixed"><parent link="hand"/><child link="tool"/>
+             <origin xyz="0.1 0 0"/></joint>
+           <link name="tool"><inertial><mass value="0.05"/>
+             <inertia ixx="1e-6" iyy="1e-6" izz="1e-6" ixy="0" ixz="0" iyz="0"/></inertial></link>
+         </robot>"#,
+        1,
+    );
+    let off_axis = tmp.path().join("tool.urdf");
+    std::fs::write(&off_axis, tool).unwrap();
+    let options = |ee: &str| InitOptions {
+        ee_link: Some(ee.into()),
+        balance_inertia: false,
+        urdf_in_scenario: "arm.urdf".into(),
+        name: "arm".into(),
+    };
+    let blind = init_scenario_noted(&on_axis, &options("hand")).unwrap();
+    assert_eq!(blind.camera_blind, vec!["roll".to_string()]);
+    assert!(
+        blind.text.contains("# The camera cannot see joint 'roll'"),
+        "{}",
+        blind.text
+    );
+    let seen = init_scenario_noted(&off_axis, &options("tool")).unwrap();
+    assert!(seen.camera_blind.is_empty(), "{:?}", seen.camera_blind);
+    assert!(!seen.text.contains("cannot see"), "{}", seen.text);
+    // Both list a sensitivity per joint; the roll joint's is 0 on its axis only.
+    let listed = |text: &str| -> Vec<f64> {
+        let line = text
+            .lines()
+            .skip_while(|l| !l.contains("as this many encoder readings"))
+            .nth(2)
+            .unwrap();
+        line.trim_start_matches("# [")
+            .trim_end_matches("].")
+            .split(", ")
+            .map(|v| v.parse().unwrap())
+            .collect()
+    };
+    let (b, s) = (listed(&blind.text), listed(&seen.text));
+    assert_eq!((b.len(), s.len()), (2, 2));
+    assert!(b[0] > 1e-3 && b[1] < 1e-6 && s[1] > 1e-4, "{b:?} {s:?}");
+    // The CLI says it too (without the check run: the note comes before it).
+    let out = tmp.path().join("blind.toml");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_aift"))
+        .args(["init", "--no-check", "--ee", "hand", "--urdf"])
+        .arg(&on_axis)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(
+        err.contains("note: the camera cannot see joint 'roll'"),
+        "{err}"
+    );
+}

@@ -2,8 +2,35 @@
 """Where one method misses a campaign's bars: cells the oracle recovers and it does not, cells
 worse than no-FT, cells beyond 10x the oracle, alarms on healthy runs, and per method the cells
 recovered where the oracle recovers. Usage: tools/campaign_misses.py campaign.csv [method]
-(default hybrid)."""
-import csv, sys, collections
+(default hybrid) [--camera SENSITIVITY.tsv]. With --camera (the output of `cargo run --release
+--example camera_sensitivity -- <the campaign's scenarios>`), every miss is annotated with its
+faulted joint's camera sensitivity (the least over the scenario's poses, in encoder readings per
+camera frame), the misses are counted by sensitivity band (below 1e-6 the camera cannot see the
+joint at all), and the method's encoder bias, drift and gain cells are listed in order of S, the
+sensitivity per radian in camera sigmas (readings / encoder sigma, the encoder's sigma 1e-3
+assumed), beside the offset at which one camera frame's mismatch 0.5 (S delta)^2 outweighs the
+ln(broad) = ln(1000) nats a tick that the hybrid's bank charges a channel it holds failed
+(delta* = sqrt(2 ln 1000) / S; docs/method.md, "Sensors nobody else can check")."""
+import csv, sys, collections, os
+args=sys.argv[1:]
+camera={}
+if '--camera' in args:
+    i=args.index('--camera'); path=args[i+1]; del args[i:i+2]
+    for r in csv.DictReader(open(path), delimiter='\t'):
+        camera[(os.path.splitext(os.path.basename(r['scenario']))[0], int(r['joint']))]=float(r['min_encoder_readings'])
+sys.argv=[sys.argv[0]]+args
+def joint_of(cell):
+    ch=cell.split(' ')[0].lstrip('"')
+    digits=ch.lstrip('abcdefghijklmnopqrstuvwxyz')
+    return int(digits) if digits.isdigit() else None
+def seen(arm,cell):
+    j=joint_of(cell)
+    return camera.get((arm,j)) if j is not None else None
+def band(s):
+    if s is None: return 'no joint'
+    if s<1e-6: return 'camera-blind (<1e-6)'
+    if s<2e-3: return 'weak (<2e-3)'
+    return 'seen (>=2e-3)'
 rows=list(csv.DictReader(open(sys.argv[1])))
 cells=[r for r in rows if r['row']=='cell']
 runs=[r for r in rows if r['row']=='run']
@@ -22,7 +49,19 @@ for (arm,cell),d in by.items():
         if float(h['ratio_to_oracle'])>10: beyond.append((arm,cell,h['ratio_to_oracle']))
     except: beyond.append((arm,cell,h['ratio_to_oracle']))
 print(f'{focus}: misses where oracle recovers: {len(miss)}')
-for m in sorted(miss): print('  ',m)
+for m in sorted(miss): print('  ',m, *([f'camera {seen(m[0],m[1]):.2e}'] if seen(m[0],m[1]) is not None else []))
+if camera:
+    cells_by_band=collections.Counter(band(seen(a,c)) for (a,c),d in by.items() if c!='healthy' and d.get('oracle',{}).get('verdict')=='recovered')
+    miss_by_band=collections.Counter(band(seen(a,c)) for a,c,*_ in miss)
+    for b in sorted(cells_by_band): print(f'  misses, {b}: {miss_by_band[b]} of {cells_by_band[b]} cells the oracle recovers')
+    import math
+    for kind in ('drift','bias','gain'):
+        print(f'{focus}: encoder {kind} cells by camera sensitivity S (1/rad), delta* = sqrt(2 ln 1000)/S; verdict, final error (rad); oracle verdict')
+        sel=[(seen(a,c),a,c,d) for (a,c),d in by.items() if c.startswith('enc') and joint_of(c) is not None and f' {kind} ' in c+' ' and focus in d]
+        for sv,a,c,d in sorted(sel, key=lambda t:(t[0] if t[0] is not None else -1, t[1], t[2])):
+            S=sv*1000 if sv is not None else float('nan')
+            ds=math.sqrt(2*math.log(1000))/S if S>0 else float('inf')
+            print(f'   {a} {c:28s} S={S:7.3g} delta*={ds:7.3g}  {d[focus]["verdict"]:9s} {float(d[focus]["max_final_error"]):.3f}  oracle {d["oracle"]["verdict"]}')
 print(f'{focus}: worse than no-ft: {len(worse)}')
 for m in sorted(worse): print('  ',m)
 print(f'{focus}: beyond 10x: {len(beyond)}; by kind', collections.Counter(c.split(' ')[1] if ' ' in c else c for a,c,_ in beyond))

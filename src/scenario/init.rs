@@ -166,6 +166,25 @@ pub fn default_ee(model: &ArmModel) -> String {
 /// # Ok::<(), aift::scenario::ScenarioError>(())
 /// ```
 pub fn init_scenario(urdf: &Path, options: &InitOptions) -> Result<String, ScenarioError> {
+    init_scenario_noted(urdf, options).map(|init| init.text)
+}
+
+/// What [`init_scenario_noted`] writes and what it found worth telling the user.
+#[derive(Clone, Debug)]
+pub struct Initialised {
+    /// The scenario (TOML text with comments).
+    pub text: String,
+    /// The joints the camera cannot see at the start or a target (below [`CAMERA_BLIND`]
+    /// encoder readings per frame), by name: an encoder drift there looks like a tachometer
+    /// bias to every method but the oracle.
+    pub camera_blind: Vec<String>,
+}
+
+/// [`init_scenario`], with the notes the scenario's comments carry as values.
+pub fn init_scenario_noted(
+    urdf: &Path,
+    options: &InitOptions,
+) -> Result<Initialised, ScenarioError> {
     let model = crate::arm::load_urdf_with(
         urdf,
         &UrdfOptions {
@@ -217,6 +236,7 @@ pub fn init_scenario(urdf: &Path, options: &InitOptions) -> Result<String, Scena
     // What init writes must load: checked against the arm before it is written.
     let layout = crate::sensors::ChannelLayout::new(n, scenario.camera.model);
     scenario.validate(&layout, urdf)?;
+    let sensitivity = camera_sensitivity(&model, &end_effector, &poses, &scenario);
     let notes = Notes {
         urdf,
         n,
@@ -230,8 +250,46 @@ pub fn init_scenario(urdf: &Path, options: &InitOptions) -> Result<String, Scena
         axis_rank: view.axis_rank,
         m_max: &gains.m_max,
         g_max: &gains.g_max,
+        camera_blind: model
+            .joints
+            .iter()
+            .zip(&sensitivity)
+            .filter(|(_, s)| **s < CAMERA_BLIND)
+            .map(|(j, _)| j.name.clone())
+            .collect(),
+        camera_sensitivity: sensitivity,
     };
-    Ok(render(&scenario, &notes))
+    Ok(Initialised {
+        text: render(&scenario, &notes),
+        camera_blind: notes.camera_blind,
+    })
+}
+
+/// Below this many encoder readings of information per camera frame, the camera cannot see a
+/// joint at all (the end effector on its axis: zero up to rounding).
+pub const CAMERA_BLIND: f64 = 1e-6;
+
+/// Per joint, the least over the start and the targets of [`Camera::joint_sensitivity`] times
+/// the encoder's sigma: one camera frame's information about the joint in encoder readings
+/// (docs/method.md, "Sensors nobody else can check"). A pose the camera cannot see counts as 0.
+fn camera_sensitivity(
+    model: &Arc<ArmModel>,
+    end_effector: &EndEffector,
+    poses: &Poses,
+    scenario: &Scenario,
+) -> Vec<f64> {
+    let camera = Camera::new(scenario.camera.clone());
+    let mut arm = Kinematics::new(model.clone());
+    let mut least = vec![f64::INFINITY; model.joints.len()];
+    for q in [&poses.q0, &poses.t1, &poses.t2] {
+        let seen = camera
+            .joint_sensitivity(model, end_effector, arm.set(q))
+            .unwrap_or_else(|_| vec![0.0; least.len()]);
+        for (l, s) in least.iter_mut().zip(seen) {
+            *l = l.min(s * scenario.sensors.encoder_sigma);
+        }
+    }
+    least
 }
 
 /// Largest final joint error (rad or m) the check run of [`check_scenario`] may end with.
@@ -680,6 +738,27 @@ struct Notes<'a> {
     axis_rank: usize,
     m_max: &'a [f64],
     g_max: &'a [f64],
+    /// Per joint, the least over the start and targets of what one camera frame tells about it,
+    /// in encoder readings.
+    camera_sensitivity: Vec<f64>,
+    /// The joints the camera cannot see (below [`CAMERA_BLIND`]), by name.
+    camera_blind: Vec<String>,
+}
+
+/// The comment naming the joints the camera cannot see, or nothing.
+fn camera_blind_note(blind: &[String]) -> String {
+    if blind.is_empty() {
+        return String::new();
+    }
+    format!(
+        "# The camera cannot see joint {}: nothing but the joint's own encoder and tachometer\n\
+         # and the dynamics can check it, and an encoder drift there looks like a tachometer bias.\n",
+        blind
+            .iter()
+            .map(|name| format!("'{name}'"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    )
 }
 
 /// Keys written even where they equal the default: the values `init` derived.
@@ -745,14 +824,19 @@ fn render(scenario: &Scenario, notes: &Notes<'_>) -> String {
         format!(
             "# A pinhole camera looking along the axis in which the end effector moves {} over the GP's\n\
              # box (so the image spans the motion), {:.2} m from the workspace centre; {} of 200 sampled\n\
-             # configurations are hidden from it. Distortion and noise are the paper's defaults.\n",
+             # configurations are hidden from it. Distortion and noise are the paper's defaults.\n\
+             # One frame tells about each joint as much as this many encoder readings (the least\n\
+             # over the start and targets; docs/method.md, \"Sensors nobody else can check\"):\n\
+             # {}.\n{}",
             [
                 "least",
                 "second least (the first hid it)",
                 "most (the others hid it)"
             ][notes.axis_rank.min(2)],
             notes.distance,
-            notes.hidden
+            notes.hidden,
+            fmt_list(&notes.camera_sensitivity),
+            camera_blind_note(&notes.camera_blind)
         ),
     );
     comment(

@@ -264,6 +264,70 @@ impl Camera {
         Ok(())
     }
 
+    /// The Jacobian of [`Camera::measure`] with respect to the world point (outputs x 3, row-major
+    /// rows), in closed form: the perspective divide's derivative
+    /// `d u / d p = (R / z)(right - (u / R) forward)` (likewise v with the image's up), then the
+    /// distortion's `f I + 2 f'(r^2) (u - c)(u - c)^T`, f' = K1 + 2 K2 r^2 + 3 K3 r^4 (module doc).
+    pub fn measure_jacobian(&self, p: &Vector3<f64>) -> Result<Vec<[f64; 3]>, NotSeen> {
+        match self.config.model {
+            CameraModel::Position => Ok(vec![[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]),
+            CameraModel::Pinhole => {
+                let u = self.project_undistorted(p).ok_or(NotSeen::Behind)?;
+                let depth = (p - self.position).dot(&self.forward);
+                let scale = self.reference_depth / depth;
+                let row = |axis: &Vector3<f64>, value: f64| -> Vector3<f64> {
+                    (axis - self.forward * (value / self.reference_depth)) * scale
+                };
+                let undistorted = [row(&self.right, u[0]), row(&self.image_up, u[1])];
+                let [cx, cy] = self.config.optical_centre;
+                let d = [u[0] - cx, u[1] - cy];
+                let r2 = d[0] * d[0] + d[1] * d[1];
+                let (k1, k2, k3) = (self.config.k1, self.config.k2, self.config.k3);
+                let f = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3));
+                let df = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2);
+                Ok((0..2)
+                    .map(|a| {
+                        let mut out = Vector3::zeros();
+                        for (b, du) in undistorted.iter().enumerate() {
+                            let identity = if a == b { f } else { 0.0 };
+                            out += du * (identity + 2.0 * df * d[a] * d[b]);
+                        }
+                        [out.x, out.y, out.z]
+                    })
+                    .collect())
+            }
+        }
+    }
+
+    /// What one camera frame says about each joint: |d measure / d q_j| / sigma, in inverse
+    /// radians (metres for a prismatic joint), at the pose `poses` (the bodies' world poses) with
+    /// end effector `ee`. Multiplied by an encoder's sigma, it is one frame's information about
+    /// the joint against one encoder reading's; zero for a joint the camera cannot see at this
+    /// pose (an end effector on the joint's axis, or a joint moving it along the line of sight):
+    /// only the joint's own sensors and the dynamics can check such a joint (docs/method.md,
+    /// "Sensors nobody else can check").
+    pub fn joint_sensitivity(
+        &self,
+        model: &crate::arm::ArmModel,
+        ee: &EndEffector,
+        poses: &[nalgebra::Isometry3<f64>],
+    ) -> Result<Vec<f64>, NotSeen> {
+        let p = ee.position(poses);
+        let camera = self.measure_jacobian(&p)?;
+        let arm = crate::arm::kinematics::ee_jacobian(model, ee, poses);
+        Ok((0..arm.ncols())
+            .map(|j| {
+                let column = arm.column(j);
+                camera
+                    .iter()
+                    .map(|row| (0..3).map(|k| row[k] * column[k]).sum::<f64>().powi(2))
+                    .sum::<f64>()
+                    .sqrt()
+                    / self.config.sigma
+            })
+            .collect())
+    }
+
     /// What the camera sees of the arm's end effector this tick, before noise, written into
     /// `out` (one value per output).
     pub fn observe(
@@ -284,6 +348,115 @@ impl Camera {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A distorted, tilted pinhole (off-centre optical centre, all three K) and the position
+    /// tracker: the closed-form Jacobian against central differences of `measure`.
+    #[test]
+    fn measure_jacobian_matches_central_differences() {
+        let tilted = CameraConfig {
+            k1: -0.08,
+            k2: 0.02,
+            k3: -0.004,
+            position: [0.4, -1.7, 0.9],
+            look_at: [0.1, 0.2, -0.3],
+            up: [0.2, 0.1, 1.0],
+            optical_centre: [0.05, -0.03],
+            reference_depth: Some(1.3),
+            ..CameraConfig::default()
+        };
+        let position = CameraConfig {
+            model: CameraModel::Position,
+            ..CameraConfig::default()
+        };
+        for config in [tilted, position] {
+            let cam = Camera::new(config);
+            for p in [
+                Vector3::new(0.3, 0.1, -0.2),
+                Vector3::new(-0.9, 0.4, 0.7),
+                Vector3::new(1.2, -0.5, -1.1),
+            ] {
+                let jac = cam.measure_jacobian(&p).unwrap();
+                let m = cam.outputs();
+                assert_eq!(jac.len(), m);
+                let h = 1e-6;
+                for k in 0..3 {
+                    let mut step = Vector3::zeros();
+                    step[k] = h;
+                    let (mut plus, mut minus) = (vec![0.0; m], vec![0.0; m]);
+                    cam.measure(&(p + step), &mut plus).unwrap();
+                    cam.measure(&(p - step), &mut minus).unwrap();
+                    for o in 0..m {
+                        let fd = (plus[o] - minus[o]) / (2.0 * h);
+                        assert!(
+                            (jac[o][k] - fd).abs() < 1e-7 * (1.0 + fd.abs()),
+                            "output {o}, axis {k}, at {p:?}: {} against {fd}",
+                            jac[o][k]
+                        );
+                    }
+                }
+            }
+        }
+        let behind = Camera::new(CameraConfig::default());
+        assert_eq!(
+            behind.measure_jacobian(&Vector3::new(0.0, -4.0, 0.0)),
+            Err(NotSeen::Behind)
+        );
+    }
+
+    /// Two links, the end effector 0.3 m out on the second: each joint's sensitivity against
+    /// central differences of forward kinematics and `measure` (an independent path), and zero
+    /// for the second joint once the end effector sits on its axis.
+    #[test]
+    fn joint_sensitivity_matches_differences_and_vanishes_on_the_axis() {
+        use crate::arm::kinematics::forward;
+        const ARM: &str = r#"<robot name="t">
+          <link name="world"/>
+          <joint name="j1" type="continuous"><parent link="world"/><child link="l1"/>
+            <axis xyz="0 -1 0"/></joint>
+          <link name="l1"><inertial><origin xyz="0.5 0 0"/><mass value="2"/>
+            <inertia ixx="0.01" ixy="0" ixz="0" iyy="0.3" iyz="0" izz="0.3"/></inertial></link>
+          <joint name="j2" type="revolute"><parent link="l1"/><child link="l2"/>
+            <origin xyz="1 0 0" rpy="0.3 0 0"/><axis xyz="0.6 -0.8 0"/>
+            <limit lower="-3" upper="3" effort="100" velocity="10"/></joint>
+          <link name="l2"><inertial><origin xyz="0.4 0 0"/><mass value="1.5"/>
+            <inertia ixx="0.01" ixy="0" ixz="0" iyy="0.2" iyz="0" izz="0.2"/></inertial></link>
+        </robot>"#;
+        let model = crate::arm::parse_urdf(ARM, std::path::Path::new("t.urdf")).unwrap();
+        let cam = Camera::new(CameraConfig::default());
+        let q = [0.4, -0.7];
+        let mut poses = vec![nalgebra::Isometry3::identity(); model.bodies.len()];
+        let image = |ee: &EndEffector, q: &[f64]| {
+            let mut poses = vec![nalgebra::Isometry3::identity(); model.bodies.len()];
+            forward(&model, q, &mut poses);
+            let mut out = [0.0; 2];
+            cam.measure(&ee.position(&poses), &mut out).unwrap();
+            out
+        };
+        let ee = EndEffector::new(&model, "l2", [0.3, 0.0, 0.0]).unwrap();
+        forward(&model, &q, &mut poses);
+        let sensitivity = cam.joint_sensitivity(&model, &ee, &poses).unwrap();
+        let h = 1e-6;
+        for j in 0..2 {
+            let (mut plus, mut minus) = (q, q);
+            plus[j] += h;
+            minus[j] -= h;
+            let (a, b) = (image(&ee, &plus), image(&ee, &minus));
+            let fd = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt()
+                / (2.0 * h)
+                / cam.config().sigma;
+            assert!(
+                (sensitivity[j] - fd).abs() < 1e-6 * fd,
+                "joint {j}: {} against {fd}",
+                sensitivity[j]
+            );
+            assert!(fd > 1.0, "joint {j} is visible here: {fd}");
+        }
+        // On the second joint's axis (through l2's origin along (0.6, -0.8, 0)).
+        let on_axis = EndEffector::new(&model, "l2", [0.3, -0.4, 0.0]).unwrap();
+        let sensitivity = cam.joint_sensitivity(&model, &on_axis, &poses).unwrap();
+        assert!(sensitivity[1] < 1e-9, "{}", sensitivity[1]);
+        assert!(sensitivity[0] > 1.0, "{}", sensitivity[0]);
+    }
 
     #[test]
     fn default_camera_sees_world_x_and_z_unmirrored() {

@@ -638,7 +638,7 @@ fn init(args: InitArgs) -> Result<(), Failure> {
             errln!("warning: {}: {w}", args.urdf.display());
         }
     }
-    let text = scenario::init::init_scenario(
+    let init = scenario::init::init_scenario_noted(
         &args.urdf,
         &scenario::init::InitOptions {
             ee_link: args.ee.clone(),
@@ -648,6 +648,15 @@ fn init(args: InitArgs) -> Result<(), Failure> {
         },
     )
     .map_err(bad_input)?;
+    for joint in &init.camera_blind {
+        errln!(
+            "note: the camera cannot see joint '{joint}' (the end effector on its axis, or moved \
+             along the line of sight): only its own encoder, tachometer and the dynamics check \
+             it, and an encoder drift there looks like a tachometer bias (docs/method.md, \
+             \"Sensors nobody else can check\")"
+        );
+    }
+    let text = init.text;
     if !args.no_check {
         errln!("checking the scenario with one healthy run (no-ft, articulated engine)...");
         scenario::init::check_scenario(&text, &args.out).map_err(bad_input)?;
