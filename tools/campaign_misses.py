@@ -6,11 +6,9 @@ recovered where the oracle recovers. Usage: tools/campaign_misses.py campaign.cs
 --example camera_sensitivity -- <the campaign's scenarios>`), every miss is annotated with its
 faulted joint's camera sensitivity (the least over the scenario's poses, in encoder readings per
 camera frame), the misses are counted by sensitivity band (below 1e-6 the camera cannot see the
-joint at all), and the method's encoder bias, drift and gain cells are listed in order of S, the
-sensitivity per radian in camera sigmas (readings / encoder sigma, the encoder's sigma 1e-3
-assumed), beside the offset at which one camera frame's mismatch 0.5 (S delta)^2 outweighs the
-ln(broad) = ln(1000) nats a tick that the hybrid's bank charges a channel it holds failed
-(delta* = sqrt(2 ln 1000) / S; docs/method.md, "Sensors nobody else can check")."""
+joint at all), and the method's encoder bias, drift and gain cells are listed in the order of
+S, the sensitivity per radian in camera sigmas (readings / encoder sigma, the encoder's sigma
+1e-3 assumed; docs/method.md, "Sensors nobody else can check")."""
 import csv, sys, collections, os
 args=sys.argv[1:]
 camera={}
@@ -54,14 +52,12 @@ if camera:
     cells_by_band=collections.Counter(band(seen(a,c)) for (a,c),d in by.items() if c!='healthy' and d.get('oracle',{}).get('verdict')=='recovered')
     miss_by_band=collections.Counter(band(seen(a,c)) for a,c,*_ in miss)
     for b in sorted(cells_by_band): print(f'  misses, {b}: {miss_by_band[b]} of {cells_by_band[b]} cells the oracle recovers')
-    import math
     for kind in ('drift','bias','gain'):
-        print(f'{focus}: encoder {kind} cells by camera sensitivity S (1/rad), delta* = sqrt(2 ln 1000)/S; verdict, final error (rad); oracle verdict')
+        print(f'{focus}: encoder {kind} cells by camera sensitivity S (1/rad); verdict, final error (rad); oracle verdict')
         sel=[(seen(a,c),a,c,d) for (a,c),d in by.items() if c.startswith('enc') and joint_of(c) is not None and f' {kind} ' in c+' ' and focus in d]
         for sv,a,c,d in sorted(sel, key=lambda t:(t[0] if t[0] is not None else -1, t[1], t[2])):
             S=sv*1000 if sv is not None else float('nan')
-            ds=math.sqrt(2*math.log(1000))/S if S>0 else float('inf')
-            print(f'   {a} {c:28s} S={S:7.3g} delta*={ds:7.3g}  {d[focus]["verdict"]:9s} {float(d[focus]["max_final_error"]):.3f}  oracle {d["oracle"]["verdict"]}')
+            print(f'   {a} {c:28s} S={S:7.3g}  {d[focus]["verdict"]:9s} {float(d[focus]["max_final_error"]):.3f}  oracle {d["oracle"]["verdict"]}')
 print(f'{focus}: worse than no-ft: {len(worse)}')
 for m in sorted(worse): print('  ',m)
 print(f'{focus}: beyond 10x: {len(beyond)}; by kind', collections.Counter(c.split(' ')[1] if ' ' in c else c for a,c,_ in beyond))
