@@ -355,8 +355,8 @@ fn init_handles_a_pendulum_whose_joints_share_one_origin() {
 /// check"): on `tests/data/coaxial_wrist.urdf` the end effector ("hand") is the roll joint's
 /// origin, on its axis, so turning it moves nothing the camera sees; `init` names that joint in
 /// the scenario's comments, as a value of the library and in a note on stderr, and lists every
-/// joint's sensitivity. With a tool 0.1 m off the roll axis the camera sees every joint, and
-/// nothing is named.
+/// joint's sensitivity; likewise the Panda's joint 7 (its flange on the joint's axis). With a
+/// tool 0.1 m off the roll axis the camera sees every joint, and nothing is named.
 #[test]
 fn init_names_the_joints_the_camera_cannot_see() {
     use aift::scenario::init::{InitOptions, init_scenario_noted};
@@ -387,6 +387,11 @@ fn init_names_the_joints_the_camera_cannot_see() {
         "{}",
         blind.text
     );
+    // A real arm: the Panda's end effector (its flange) lies on joint 7's axis.
+    let panda = common::repo("urdf/panda_7dof.urdf");
+    let panda_ee = aift::scenario::init::default_ee(&aift::arm::load_urdf(&panda).unwrap());
+    let panda = init_scenario_noted(&panda, &options(&panda_ee)).unwrap();
+    assert_eq!(panda.camera_blind, vec!["panda_joint7".to_string()]);
     let seen = init_scenario_noted(&off_axis, &options("tool")).unwrap();
     assert!(seen.camera_blind.is_empty(), "{:?}", seen.camera_blind);
     assert!(!seen.text.contains("cannot see"), "{}", seen.text);

@@ -174,9 +174,9 @@ pub fn init_scenario(urdf: &Path, options: &InitOptions) -> Result<String, Scena
 pub struct Initialised {
     /// The scenario (TOML text with comments).
     pub text: String,
-    /// The joints the camera cannot see at the start or a target (below [`CAMERA_BLIND`]
-    /// encoder readings per frame), by name: an encoder drift there looks like a tachometer
-    /// bias to every method but the oracle.
+    /// The joints the camera cannot see, at the start nor at any target (below
+    /// [`CAMERA_BLIND`] encoder readings per frame at every one), by name: an encoder drift
+    /// there looks like a tachometer bias to every method but the oracle.
     pub camera_blind: Vec<String>,
 }
 
@@ -236,7 +236,7 @@ pub fn init_scenario_noted(
     // What init writes must load: checked against the arm before it is written.
     let layout = crate::sensors::ChannelLayout::new(n, scenario.camera.model);
     scenario.validate(&layout, urdf)?;
-    let sensitivity = camera_sensitivity(&model, &end_effector, &poses, &scenario);
+    let (sensitivity, greatest) = camera_sensitivity(&model, &end_effector, &poses, &scenario);
     let notes = Notes {
         urdf,
         n,
@@ -253,7 +253,7 @@ pub fn init_scenario_noted(
         camera_blind: model
             .joints
             .iter()
-            .zip(&sensitivity)
+            .zip(&greatest)
             .filter(|(_, s)| **s < CAMERA_BLIND)
             .map(|(j, _)| j.name.clone())
             .collect(),
@@ -269,27 +269,30 @@ pub fn init_scenario_noted(
 /// joint at all (the end effector on its axis: zero up to rounding).
 pub const CAMERA_BLIND: f64 = 1e-6;
 
-/// Per joint, the least over the start and the targets of [`Camera::joint_sensitivity`] times
-/// the encoder's sigma: one camera frame's information about the joint in encoder readings
-/// (docs/method.md, "Sensors nobody else can check"). A pose the camera cannot see counts as 0.
+/// Per joint, the least and the greatest over the start and the targets of
+/// [`Camera::joint_sensitivity`] times the encoder's sigma: one camera frame's information about
+/// the joint in encoder readings (docs/method.md, "Sensors nobody else can check"). A pose the
+/// camera cannot see counts as 0.
 fn camera_sensitivity(
     model: &Arc<ArmModel>,
     end_effector: &EndEffector,
     poses: &Poses,
     scenario: &Scenario,
-) -> Vec<f64> {
+) -> (Vec<f64>, Vec<f64>) {
     let camera = Camera::new(scenario.camera.clone());
     let mut arm = Kinematics::new(model.clone());
-    let mut least = vec![f64::INFINITY; model.joints.len()];
+    let n = model.joints.len();
+    let (mut least, mut greatest) = (vec![f64::INFINITY; n], vec![0.0_f64; n]);
     for q in [&poses.q0, &poses.t1, &poses.t2] {
         let seen = camera
             .joint_sensitivity(model, end_effector, arm.set(q))
-            .unwrap_or_else(|_| vec![0.0; least.len()]);
-        for (l, s) in least.iter_mut().zip(seen) {
-            *l = l.min(s * scenario.sensors.encoder_sigma);
+            .unwrap_or_else(|_| vec![0.0; n]);
+        for (j, s) in seen.into_iter().enumerate() {
+            least[j] = least[j].min(s * scenario.sensors.encoder_sigma);
+            greatest[j] = greatest[j].max(s * scenario.sensors.encoder_sigma);
         }
     }
-    least
+    (least, greatest)
 }
 
 /// Largest final joint error (rad or m) the check run of [`check_scenario`] may end with.
@@ -741,7 +744,8 @@ struct Notes<'a> {
     /// Per joint, the least over the start and targets of what one camera frame tells about it,
     /// in encoder readings.
     camera_sensitivity: Vec<f64>,
-    /// The joints the camera cannot see (below [`CAMERA_BLIND`]), by name.
+    /// The joints the camera cannot see at the start nor at any target (below
+    /// [`CAMERA_BLIND`] at every one), by name.
     camera_blind: Vec<String>,
 }
 
