@@ -7,15 +7,15 @@
 //! "Sensors nobody else can check").
 //!
 //! `cargo run --release --example camera_sensitivity -- SCENARIO...` prints one tab-separated
-//! row per scenario and joint: the scenario, the joint (from 1), and the least and greatest
-//! sensitivity over the poses.
+//! row per scenario and joint: the scenario, the joint (from 1), the least and greatest
+//! sensitivity over the poses in encoder readings, and the same per radian in camera sigmas (S).
+//! A pose at which the end effector is behind the camera counts as 0.
 
 use std::path::PathBuf;
 
-use aift::arm::kinematics::{EndEffector, forward};
+use aift::arm::kinematics::EndEffector;
 use aift::scenario::LoadedScenario;
 use aift::sensors::camera::Camera;
-use nalgebra::Isometry3;
 
 fn main() -> anyhow::Result<()> {
     let paths: Vec<PathBuf> = std::env::args().skip(1).map(PathBuf::from).collect();
@@ -23,35 +23,30 @@ fn main() -> anyhow::Result<()> {
         !paths.is_empty(),
         "usage: camera_sensitivity SCENARIO.toml [SCENARIO.toml ...]"
     );
-    println!("scenario\tjoint\tmin_encoder_readings\tmax_encoder_readings");
+    println!(
+        "scenario\tjoint\tmin_encoder_readings\tmax_encoder_readings\tmin_per_radian\tmax_per_radian"
+    );
     for path in &paths {
         let loaded = LoadedScenario::from_file(path, &[])?;
         let model = loaded.arm_model()?;
         let sc = &loaded.scenario;
         let ee = EndEffector::new(&model, &sc.robot.ee_link, sc.robot.ee_offset)?;
-        let camera = Camera::new(sc.camera.clone());
-        let n = model.joints.len();
-        let mut poses = vec![Isometry3::identity(); model.bodies.len()];
-        let (mut least, mut most) = (vec![f64::INFINITY; n], vec![0.0_f64; n]);
-        let start = std::iter::once(&sc.initial.q);
-        for q in start.chain(sc.targets.iter().map(|t| &t.q)) {
-            forward(&model, q, &mut poses);
-            let sensitivity = camera.joint_sensitivity(&model, &ee, &poses).map_err(|e| {
-                anyhow::anyhow!("{}: the camera sees nothing: {e:?}", path.display())
-            })?;
-            for (j, s) in sensitivity.iter().enumerate() {
-                let readings = s * sc.sensors.encoder_sigma;
-                least[j] = least[j].min(readings);
-                most[j] = most[j].max(readings);
-            }
-        }
-        for j in 0..n {
+        let qs = std::iter::once(&sc.initial.q).chain(sc.targets.iter().map(|t| &t.q));
+        let (least, most) = Camera::new(sc.camera.clone()).joint_sensitivity_range(
+            &model,
+            &ee,
+            qs.map(|q| q.as_slice()),
+        );
+        let sigma = sc.sensors.encoder_sigma;
+        for (j, (l, m)) in least.iter().zip(&most).enumerate() {
             println!(
-                "{}\t{}\t{:.3e}\t{:.3e}",
+                "{}\t{}\t{:.3e}\t{:.3e}\t{:.3e}\t{:.3e}",
                 path.display(),
                 j + 1,
-                least[j],
-                most[j]
+                l * sigma,
+                m * sigma,
+                l,
+                m
             );
         }
     }

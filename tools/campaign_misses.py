@@ -7,28 +7,27 @@ recovered where the oracle recovers. Usage: tools/campaign_misses.py campaign.cs
 faulted joint's camera sensitivity (the least over the scenario's poses, in encoder readings per
 camera frame), the misses are counted by sensitivity band (below 1e-6 the camera cannot see the
 joint at all), and the method's encoder bias, drift and gain cells are listed in the order of
-S, the sensitivity per radian in camera sigmas (readings / encoder sigma, the encoder's sigma
-1e-3 assumed; docs/method.md, "Sensors nobody else can check")."""
+S, the sensitivity per radian in camera sigmas (docs/method.md, "Sensors nobody else can
+check")."""
 import csv, sys, collections, os
 args=sys.argv[1:]
 camera={}
 if '--camera' in args:
     i=args.index('--camera'); path=args[i+1]; del args[i:i+2]
     for r in csv.DictReader(open(path), delimiter='\t'):
-        camera[(os.path.splitext(os.path.basename(r['scenario']))[0], int(r['joint']))]=float(r['min_encoder_readings'])
+        camera[(os.path.splitext(os.path.basename(r['scenario']))[0], int(r['joint']))]=(float(r['min_encoder_readings']), float(r['min_per_radian']))
 sys.argv=[sys.argv[0]]+args
 def joint_of(cell):
     ch=cell.split(' ')[0].lstrip('"')
     digits=ch.lstrip('abcdefghijklmnopqrstuvwxyz')
     return int(digits) if digits.isdigit() else None
-def seen(arm,cell):
+def seen(arm,cell,per_radian=False):
     j=joint_of(cell)
-    return camera.get((arm,j)) if j is not None else None
+    v=camera.get((arm,j)) if j is not None else None
+    return None if v is None else v[1 if per_radian else 0]
 def band(s):
     if s is None: return 'no joint'
-    if s<1e-6: return 'camera-blind (<1e-6)'
-    if s<2e-3: return 'weak (<2e-3)'
-    return 'seen (>=2e-3)'
+    return 'camera-blind (<1e-6)' if s<1e-6 else 'seen'
 rows=list(csv.DictReader(open(sys.argv[1])))
 cells=[r for r in rows if r['row']=='cell']
 runs=[r for r in rows if r['row']=='run']
@@ -54,9 +53,9 @@ if camera:
     for b in sorted(cells_by_band): print(f'  misses, {b}: {miss_by_band[b]} of {cells_by_band[b]} cells the oracle recovers')
     for kind in ('drift','bias','gain'):
         print(f'{focus}: encoder {kind} cells by camera sensitivity S (1/rad); verdict, final error (rad); oracle verdict')
-        sel=[(seen(a,c),a,c,d) for (a,c),d in by.items() if c.startswith('enc') and joint_of(c) is not None and f' {kind} ' in c+' ' and focus in d]
-        for sv,a,c,d in sorted(sel, key=lambda t:(t[0] if t[0] is not None else -1, t[1], t[2])):
-            S=sv*1000 if sv is not None else float('nan')
+        sel=[(seen(a,c,True),a,c,d) for (a,c),d in by.items() if c.startswith('enc') and joint_of(c) is not None and f' {kind} ' in c+' ' and focus in d]
+        for S,a,c,d in sorted(sel, key=lambda t:(t[0] if t[0] is not None else -1, t[1], t[2])):
+            S=S if S is not None else float('nan')
             print(f'   {a} {c:28s} S={S:7.3g}  {d[focus]["verdict"]:9s} {float(d[focus]["max_final_error"]):.3f}  oracle {d["oracle"]["verdict"]}')
 print(f'{focus}: worse than no-ft: {len(worse)}')
 for m in sorted(worse): print('  ',m)

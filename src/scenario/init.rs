@@ -274,25 +274,20 @@ pub const CAMERA_BLIND: f64 = 1e-6;
 /// the joint in encoder readings (docs/method.md, "Sensors nobody else can check"). A pose the
 /// camera cannot see counts as 0.
 fn camera_sensitivity(
-    model: &Arc<ArmModel>,
+    model: &ArmModel,
     end_effector: &EndEffector,
     poses: &Poses,
     scenario: &Scenario,
 ) -> (Vec<f64>, Vec<f64>) {
-    let camera = Camera::new(scenario.camera.clone());
-    let mut arm = Kinematics::new(model.clone());
-    let n = model.joints.len();
-    let (mut least, mut greatest) = (vec![f64::INFINITY; n], vec![0.0_f64; n]);
-    for q in [&poses.q0, &poses.t1, &poses.t2] {
-        let seen = camera
-            .joint_sensitivity(model, end_effector, arm.set(q))
-            .unwrap_or_else(|_| vec![0.0; n]);
-        for (j, s) in seen.into_iter().enumerate() {
-            least[j] = least[j].min(s * scenario.sensors.encoder_sigma);
-            greatest[j] = greatest[j].max(s * scenario.sensors.encoder_sigma);
-        }
-    }
-    (least, greatest)
+    let qs = [&poses.q0, &poses.t1, &poses.t2].map(|q| q.as_slice());
+    let (least, greatest) =
+        Camera::new(scenario.camera.clone()).joint_sensitivity_range(model, end_effector, qs);
+    let readings = |v: Vec<f64>| -> Vec<f64> {
+        v.into_iter()
+            .map(|s| s * scenario.sensors.encoder_sigma)
+            .collect()
+    };
+    (readings(least), readings(greatest))
 }
 
 /// Largest final joint error (rad or m) the check run of [`check_scenario`] may end with.

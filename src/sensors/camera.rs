@@ -328,6 +328,31 @@ impl Camera {
             .collect())
     }
 
+    /// [`Camera::joint_sensitivity`] per joint, the least and the greatest over the joint
+    /// positions `qs` (a scenario's start and targets): a pose at which the end effector is
+    /// behind the camera counts as 0 for every joint.
+    pub fn joint_sensitivity_range<'a>(
+        &self,
+        model: &crate::arm::ArmModel,
+        ee: &EndEffector,
+        qs: impl IntoIterator<Item = &'a [f64]>,
+    ) -> (Vec<f64>, Vec<f64>) {
+        let n = model.joints.len();
+        let mut poses = vec![nalgebra::Isometry3::identity(); model.bodies.len()];
+        let (mut least, mut greatest) = (vec![f64::INFINITY; n], vec![0.0_f64; n]);
+        for q in qs {
+            crate::arm::kinematics::forward(model, q, &mut poses);
+            let seen = self
+                .joint_sensitivity(model, ee, &poses)
+                .unwrap_or_else(|_| vec![0.0; n]);
+            for (j, s) in seen.into_iter().enumerate() {
+                least[j] = least[j].min(s);
+                greatest[j] = greatest[j].max(s);
+            }
+        }
+        (least, greatest)
+    }
+
     /// What the camera sees of the arm's end effector this tick, before noise, written into
     /// `out` (one value per output).
     pub fn observe(
