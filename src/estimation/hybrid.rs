@@ -147,7 +147,9 @@ pub struct HybridConfig {
     /// runs by about a fifth, but it integrates a tachometer's scale error into the position,
     /// and once an encoder is dropped it leans on the camera model's bias. A third choice,
     /// `fixed-until-tachometer-fails`: the fixed prior while the bank's most probable hypothesis
-    /// trusts every tachometer, the propagated one while it holds a tachometer failed (without
+    /// trusts every tachometer and every tachometer reads, the propagated one while it holds a
+    /// tachometer failed or a tachometer's reading is missing (a dropout is no evidence against
+    /// the sensor, so no hypothesis blames it, but the joint is as blind to velocity) (without
     /// its tachometer a joint's velocity comes from differences of encoder readings, which the
     /// fixed prior turns into a noisy mu' the PID's damping term amplifies on an undamped arm;
     /// measured in docs/method.md, "The hybrid"). Absent: `fixed-until-tachometer-fails` with
@@ -945,7 +947,7 @@ impl Estimator for Hybrid {
             let tachometer_failed = self
                 .layout
                 .group_range(crate::sensors::SensorGroup::Tachometers)
-                .any(|c| self.holds_failed(winner, c));
+                .any(|c| self.holds_failed(winner, c) || input.readings.get(c).is_none());
             if tachometer_failed {
                 self.uaic.set_prior(PriorMode::Propagated);
                 floor = 0.0;

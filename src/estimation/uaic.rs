@@ -53,9 +53,9 @@ pub enum PriorMode {
     /// last update's Laplace posterior covariance H^-1 and Q the white-acceleration process
     /// noise of the acceleration bound (docs/method.md, "Propagated prior").
     Propagated,
-    /// Fixed while every tachometer's precision in force is at least the prior's velocity
-    /// precision P_mu', propagated while one is below it (a tachometer dropped or
-    /// down-weighted): without its tachometer a joint's velocity belief is the prior's, and the
+    /// Fixed while every tachometer reads and its precision in force is at least the prior's
+    /// velocity precision P_mu', propagated while one is below it or its reading is missing (a
+    /// tachometer dropped, down-weighted or silent): without its tachometer a joint's velocity belief is the prior's, and the
     /// fixed P_mu' then closes a loop with the controller's damping that can oscillate
     /// (docs/method.md, "Propagated prior", a dropped tachometer).
     Switched,
@@ -569,7 +569,7 @@ impl Uaic {
             let dropped = self
                 .layout
                 .group_range(crate::sensors::SensorGroup::Tachometers)
-                .any(|c| precisions[c] < pv);
+                .any(|c| precisions[c] < pv || readings.get(c).is_none());
             self.prior_in_force = if dropped {
                 PriorMode::Propagated
             } else {
