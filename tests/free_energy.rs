@@ -204,8 +204,9 @@ fn the_authors_matlab_form_is_their_update_line_by_line() {
     assert_eq!(e.field, "prediction");
 }
 
-/// `prior = "switched"` is the fixed prior while every tachometer's precision is at least the
-/// prior's P_mu', and the propagated prior from the first tick one is below it (the propagated
+/// `prior = "switched"` is the fixed prior while every tachometer reads and its precision is at
+/// least the prior's P_mu', and the propagated prior from the first tick one is below it or its
+/// reading is missing (the propagated
 /// prior starts from the last posterior covariance, which the fixed prior's updates also
 /// compute): bit for bit a fixed-prior belief switched by hand at that tick, and back once the
 /// tachometer returns.
@@ -221,8 +222,9 @@ fn the_switched_prior_is_fixed_until_a_tachometer_is_dropped_then_propagated() {
     let mut a = Uaic::new(switched, observation(gp.clone()), 1e-3);
     let mut b = Uaic::new(UaicConfig::default(), observation(gp), 1e-3);
     let mut r = readings();
-    for k in 0..400u32 {
-        // Tachometer 2 (channel 3): nominal, then just below P_mu', then 0, then nominal again.
+    for k in 0..500u32 {
+        // Tachometer 2 (channel 3): nominal, then just below P_mu', then 0, then nominal but
+        // missing (a dropout), then nominal again.
         let mut w = PRECISIONS;
         let expect = match k {
             0..100 => PriorMode::Fixed,
@@ -234,6 +236,7 @@ fn the_switched_prior_is_fixed_until_a_tachometer_is_dropped_then_propagated() {
                 w[3] = 0.0;
                 PriorMode::Propagated
             }
+            300..400 => PriorMode::Propagated,
             _ => PriorMode::Fixed,
         };
         // At P_mu' exactly it stays fixed.
@@ -246,7 +249,11 @@ fn the_switched_prior_is_fixed_until_a_tachometer_is_dropped_then_propagated() {
         r.values[0] = Some(-0.61 + 0.5 * t);
         r.values[1] = Some(0.22 - 0.3 * t);
         r.values[2] = Some(0.5);
-        r.values[3] = Some(-0.3);
+        r.values[3] = if (300..400).contains(&k) {
+            None
+        } else {
+            Some(-0.3)
+        };
         a.step(&r, &w);
         b.step(&r, &w);
         assert_eq!(a.prior_in_force(), expect, "tick {k}");
