@@ -210,6 +210,20 @@ pub struct HybridConfig {
     /// recoveries); `false` is the white model error of the earlier default. (Always written,
     /// so that a scenario's fingerprint says which.)
     pub model_error_state: bool,
+    /// Pair evidence (docs/method.md, "The hybrid", pair evidence): while the most probable
+    /// hypothesis holds one of a joint's two sensors failed (its encoder or its tachometer),
+    /// the odds between "the encoder failed" and "the tachometer failed" (all else as the
+    /// winner) are not the bank's per-tick ones but accumulated over the contest's life from
+    /// the channels both can be checked against: the camera's and the pair's squared
+    /// normalised innovations (without the ln s term, which favours the hypothesis that
+    /// trusts the sharply predicted encoder whatever happened) and the stuck-reading
+    /// evidence, starting from the bank's odds when the contest opens; neither state is
+    /// restarted from the winner meanwhile. An encoder drift the camera sees weakly is then
+    /// blamed once the camera's evidence, which grows with the cube of the time, outweighs
+    /// the odds at the onset. Off by default (opt-in, measured in docs/method.md). (Written
+    /// only when set, so that fingerprints of scenarios that do not set it stay as they were.)
+    #[serde(skip_serializing_if = "is_false")]
+    pub pair_evidence: bool,
 }
 
 impl Default for HybridConfig {
@@ -230,6 +244,7 @@ impl Default for HybridConfig {
             actuator_broad: 100.0,
             restart_ruled_out: true,
             model_error_state: true,
+            pair_evidence: false,
         }
     }
 }
@@ -381,6 +396,26 @@ pub struct Hybrid {
     velocity_spread: Vec<f64>,
     /// The lead filter's model-error estimate, handed to the model with the velocity spread.
     model_error: Vec<f64>,
+    /// `pair_evidence`: per joint, the open contest's log odds ln p(encoder failed) /
+    /// p(tachometer failed), and this tick's slots of the two hypotheses (encoder failed,
+    /// tachometer failed).
+    contests: Vec<Option<(f64, u64)>>,
+    /// Per joint and camera output: the open contest's sums over its ticks of z and z^2 for
+    /// "the encoder failed" and "the tachometer failed", and the count (5 numbers).
+    contest_sums: Vec<f64>,
+    pair_slots: Vec<Option<(usize, usize)>>,
+    /// Scratch per slot: this tick's squared normalised innovations of the contest's channels
+    /// and stuck-reading evidence.
+    /// Per joint, the open contest's own two filters ("the encoder failed", "the tachometer
+    /// failed"), never restarted from the winner, and their normalised camera residuals of
+    /// this tick (2n x channels).
+    contest_filters: Vec<Ekf>,
+    pair_z: Vec<f64>,
+    /// Per channel: scored in this tick's contests (the camera, the contested joints' sensors).
+    pair_scored: Vec<bool>,
+    /// The bank's probabilities with the contests' camera evidence (`pair_evidence`; otherwise
+    /// a copy): what the winner, the precisions and the re-anchoring are decided with.
+    view: Vec<f64>,
 }
 
 impl Hybrid {
@@ -423,6 +458,12 @@ impl Hybrid {
             *p = 1e-3 / k as f64;
         }
         let restarted = vec![ekf.clone(); h];
+        let probability_view = probability.clone();
+        let contest_filters = if config.pair_evidence {
+            vec![ekf.clone(); 2 * n]
+        } else {
+            Vec::new()
+        };
         Self {
             uaic,
             layout,
@@ -455,7 +496,182 @@ impl Hybrid {
             anchor_p: DMatrix::zeros(dim, dim),
             velocity_spread: vec![0.0; n],
             model_error: vec![0.0; n],
+            contests: vec![None; n],
+            pair_slots: vec![None; n],
+            contest_sums: vec![0.0; n * layout.camera_outputs() * 5],
+            contest_filters,
+            pair_z: vec![f64::NAN; 2 * n * layout.len()],
+            pair_scored: vec![false; layout.len()],
+            view: probability_view,
         }
+    }
+
+    /// The active slot that holds failed what hypothesis `w` does apart from joint sensors `e`
+    /// and `t`, and of those two only `add`.
+    fn pair_slot(&self, w: usize, e: usize, t: usize, add: usize) -> Option<usize> {
+        let keys = self.base_failed.len();
+        (0..self.bank.len()).find(|&j| {
+            self.bank.active[j]
+                && (0..keys).all(|k| {
+                    let want = if k == e || k == t {
+                        k == add
+                    } else {
+                        self.holds_failed(w, k)
+                    };
+                    self.holds_failed(j, k) == want
+                })
+        })
+    }
+
+    /// `pair_evidence`: a contest between "joint i's encoder failed" and "its tachometer
+    /// failed" (all else as the most probable hypothesis) opens, at the bank's odds between
+    /// them, when the most probable hypothesis holds one of the two failed and not the other,
+    /// and closes once it has held neither (or both) for `resync_ticks`: the bank's winner
+    /// flickers between "healthy" and a failure while a fault is young, and the contest must
+    /// not forget its evidence each time. Fills this tick's slots of the open contests.
+    fn find_pairs(&mut self) {
+        let w = self.view_winner();
+        let n = self.layout.n_joints();
+        let patience = self.config.resync_ticks.max(1);
+        for i in 0..n {
+            let (e, t) = (i, n + i);
+            let one = self.holds_failed(w, e) != self.holds_failed(w, t);
+            match self.contests[i].as_mut() {
+                None if !one => {
+                    self.pair_slots[i] = None;
+                    continue;
+                }
+                Some(c) if !one => {
+                    c.1 += 1;
+                    if c.1 >= patience {
+                        self.contests[i] = None;
+                        self.pair_slots[i] = None;
+                        continue;
+                    }
+                }
+                Some(c) => c.1 = 0,
+                None => {}
+            }
+            let slots = self.pair_slot(w, e, t, e).zip(self.pair_slot(w, e, t, t));
+            self.pair_slots[i] = slots;
+            if self.contests[i].is_none()
+                && let Some((je, jt)) = slots
+            {
+                self.contests[i] = Some((0.0, 0));
+                let (fe, ft) = self.contest_filters.split_at_mut(2 * i + 1);
+                let (fe, ft) = (&mut fe[2 * i], &mut ft[0]);
+                fe.x.copy_from(&self.bank.filters[je].x);
+                fe.p.copy_from(&self.bank.filters[je].p);
+                ft.x.copy_from(&self.bank.filters[jt].x);
+                ft.p.copy_from(&self.bank.filters[jt].p);
+                let r = self.layout.camera_outputs();
+                self.contest_sums[i * r * 5..(i + 1) * r * 5].fill(0.0);
+            }
+        }
+        for c in 0..self.layout.len() {
+            self.pair_scored[c] = self.contest_channel(c);
+        }
+    }
+
+    /// The open contest and side (0: the encoder failed, 1: the tachometer failed) whose
+    /// hypothesis is slot j this tick.
+    fn contest_side(&self, j: usize) -> Option<(usize, usize)> {
+        (0..self.layout.n_joints()).find_map(|i| match (self.pair_slots[i], self.contests[i]) {
+            (Some((je, _)), Some(_)) if je == j => Some((i, 0)),
+            (Some((_, jt)), Some(_)) if jt == j => Some((i, 1)),
+            _ => None,
+        })
+    }
+
+    /// Whether channel c is scored in the contests: the camera's outputs and the contested
+    /// joints' encoders and tachometers.
+    fn contest_channel(&self, c: usize) -> bool {
+        matches!(self.layout.channel(c), Channel::Camera(_))
+    }
+
+    /// Updates each open contest's two filters with this tick's readings, at the variances of
+    /// their hypotheses in the bank, recording their normalised camera residuals.
+    fn update_contests(&mut self, input: &EstimatorInput<'_>) {
+        let m = self.layout.len();
+        for i in 0..self.layout.n_joints() {
+            let Some((je, jt)) = self.pair_slots[i] else {
+                self.pair_z[2 * i * m..(2 * i + 2) * m].fill(f64::NAN);
+                continue;
+            };
+            if self.contests[i].is_none() {
+                continue;
+            }
+            for (side, j) in [(0, je), (1, jt)] {
+                self.hypothesis_variances(j, input);
+                let f = &mut self.contest_filters[2 * i + side];
+                f.linearise();
+                let scored = &self.pair_scored;
+                f.update_scored(
+                    input.readings,
+                    &self.variances,
+                    |c| scored[c],
+                    &mut self.pair_z[(2 * i + side) * m..(2 * i + side + 1) * m],
+                );
+            }
+        }
+    }
+
+    /// The contests' camera evidence after this tick, ln odds += -1/2 (chi2_E - chi2_T), and
+    /// the view of the bank's probabilities the hybrid decides with: the bank's own, with each
+    /// open contest's two hypotheses sharing their total by the bank's odds between them plus
+    /// the contest's camera evidence (the bank's per-tick odds keep what the readings of the
+    /// pair say, a stuck reading among them; the contest adds what the camera has said over the
+    /// contest's life, which the switching prior would forget).
+    fn weigh_contests(&mut self) {
+        self.view.copy_from_slice(&self.bank.probability);
+        if !self.config.pair_evidence {
+            return;
+        }
+        for i in 0..self.layout.n_joints() {
+            let (Some((je, jt)), Some((odds, _))) = (self.pair_slots[i], self.contests[i].as_mut())
+            else {
+                continue;
+            };
+            // Per camera output, each hypothesis' normalised residuals with a constant offset
+            // b ~ N(0, kappa) marginalised out (the GP's systematic error at the poses of the
+            // contest, kappa = camera_inflation^2 - 1 in units of the bank's camera variance):
+            // ln L = -1/2 (sum z^2 - (sum z)^2 / (N + 1 / kappa)) + terms equal for both.
+            let m = self.layout.len();
+            let cam = self.layout.group_range(crate::sensors::SensorGroup::Camera);
+            let r = self.layout.camera_outputs();
+            let kappa =
+                (self.config.camera_inflation * self.config.camera_inflation - 1.0).max(1e-12);
+            let mut total = 0.0;
+            for (o, c) in cam.enumerate() {
+                let sums = &mut self.contest_sums[(i * r + o) * 5..(i * r + o + 1) * 5];
+                let (ze, zt) = (self.pair_z[2 * i * m + c], self.pair_z[(2 * i + 1) * m + c]);
+                if ze.is_finite() && zt.is_finite() {
+                    sums[0] += ze;
+                    sums[1] += ze * ze;
+                    sums[2] += zt;
+                    sums[3] += zt * zt;
+                    sums[4] += 1.0;
+                }
+                let shrink = sums[4] + 1.0 / kappa;
+                total += -0.5 * (sums[1] - sums[0] * sums[0] / shrink)
+                    + 0.5 * (sums[3] - sums[2] * sums[2] / shrink);
+            }
+            *odds = total.clamp(-700.0, 700.0);
+            let v = &mut self.view;
+            let total = v[je] + v[jt];
+            let tilted = v[je].ln() - v[jt].ln() + *odds;
+            let pe = total / (1.0 + (-tilted).exp());
+            v[je] = pe.max(FLOOR.value);
+            v[jt] = (total - pe).max(FLOOR.value);
+        }
+    }
+
+    /// The most probable hypothesis of the view (the last of equals; without contests the
+    /// bank's own).
+    fn view_winner(&self) -> usize {
+        (0..self.view.len())
+            .max_by(|&a, &b| self.view[a].total_cmp(&self.view[b]))
+            .unwrap_or(0)
     }
 
     /// Whether the belief lies outside hypothesis j's 3-sigma ellipsoid (with the belief's own
@@ -497,7 +713,7 @@ impl Hybrid {
     /// `camera = "bank"`, then with `actuators` each joint's actuator and the external torque), the base with its last failure swapped for key k (slot 1 + K + k; 0
     /// while inactive). `failed_channels` says what the base holds.
     pub fn probabilities(&self) -> &[f64] {
-        &self.bank.probability
+        &self.view
     }
 
     /// The channels the base hypothesis holds failed, the failures the bank has accepted
@@ -552,7 +768,7 @@ impl Hybrid {
     fn failure_probability(&self, key: usize) -> f64 {
         (0..self.bank.len())
             .filter(|&j| self.bank.active[j] && self.holds_failed(j, key))
-            .map(|j| self.bank.probability[j])
+            .map(|j| self.view[j])
             .sum()
     }
 
@@ -671,6 +887,10 @@ impl Hybrid {
         self.kept = kept;
         self.scratch_p = p;
         self.restart_from_base();
+        // The slots have moved: the view is the bank's until the next weighing, and the open
+        // contests find their slots again.
+        self.view.copy_from_slice(&self.bank.probability);
+        self.pair_slots.fill(None);
     }
 
     /// A resync while the winner stays, every `resync_ticks`. The hypotheses the data do not
@@ -849,6 +1069,9 @@ impl Hybrid {
             }
             self.initialised = true;
         } else {
+            if self.config.pair_evidence {
+                self.find_pairs();
+            }
             if self.config.restart_ruled_out {
                 self.restart_ruled_out();
             }
@@ -898,6 +1121,15 @@ impl Hybrid {
             let (scale, n) = (&self.joint_scale, self.layout.n_joints());
             self.bank
                 .predict_per_joint(&transition, |j, i| scale[j * n + i]);
+            for i in 0..n {
+                if self.contests.get(i).is_some_and(|c| c.is_some()) {
+                    for side in 0..2 {
+                        let slot = self.pair_slots[i].map(|(a, b)| if side == 0 { a } else { b });
+                        let f = &mut self.contest_filters[2 * i + side];
+                        f.predict_scaled(&transition, |k| slot.map_or(1.0, |j| scale[j * n + k]));
+                    }
+                }
+            }
             for (j, r) in self.restarted.iter_mut().enumerate() {
                 if self.restart_candidate[j] {
                     r.predict_scaled(&transition, |i| scale[j * n + i]);
@@ -926,9 +1158,13 @@ impl Hybrid {
                 self.bank.log_evidence[j] = f64::NEG_INFINITY;
             }
         }
+        if self.config.pair_evidence && self.initialised {
+            self.update_contests(input);
+        }
         self.last.copy_from_slice(&input.readings.values);
         self.ticks += 1;
         self.bank.weigh(FLOOR);
+        self.weigh_contests();
     }
 }
 
@@ -939,7 +1175,7 @@ impl Estimator for Hybrid {
         // hypothesis; while it is the propagated prior, a channel's precision is nominal x
         // P(healthy) without the floor: the propagated prior's velocity belief is loose enough
         // that a frozen tachometer at the floor precision would bias mu'.
-        let winner = self.bank.most_probable();
+        let winner = self.view_winner();
         let mut floor = self.floor;
         if self.config.prior_mode(self.uaic.config().update)
             == HybridPrior::FixedUntilTachometerFails
@@ -977,6 +1213,16 @@ impl Estimator for Hybrid {
             && tick > self.winner_since
             && (tick - self.winner_since).is_multiple_of(period);
         if winner != self.winner {
+            // A contest's side that becomes the winner brings its own state: the bank's copy of
+            // the hypothesis may have been restarted from the old winner's mean, which followed
+            // the faulty channel.
+            if self.config.pair_evidence
+                && let Some((i, side)) = self.contest_side(winner)
+            {
+                let f = &self.contest_filters[2 * i + side];
+                self.bank.filters[winner].x.copy_from(&f.x);
+                self.bank.filters[winner].p.copy_from(&f.p);
+            }
             if self.config.reanchor
                 && self.distrusts_more(winner, self.winner)
                 && self.outside(winner)

@@ -532,6 +532,36 @@ impl Ekf {
         ll
     }
 
+    /// [`Self::update`] that also writes, for each channel `scored` picks, its normalised
+    /// sequential innovation nu / sqrt(s) (as the log-likelihood takes it; NaN when the channel
+    /// has no reading) into `z`: what the hybrid's pair evidence compares between two
+    /// hypotheses (docs/method.md, "The hybrid", pair evidence).
+    pub fn update_scored(
+        &mut self,
+        readings: &Readings,
+        variances: &[f64],
+        scored: impl Fn(usize) -> bool,
+        z: &mut [f64],
+    ) -> f64 {
+        let mut ll = 0.0;
+        for c in 0..self.layout.len() {
+            z[c] = f64::NAN;
+            if let Some(y) = readings.get(c)
+                && variances[c].is_finite()
+            {
+                if scored(c) {
+                    let nu = y - self.predicted(c);
+                    let s = self.projected_variance(c) + variances[c];
+                    if s.is_finite() && s > 0.0 {
+                        z[c] = nu / s.sqrt();
+                    }
+                }
+                ll += self.update_channel(c, y, variances[c]);
+            }
+        }
+        ll
+    }
+
     /// Fills the post-update part of an [`Estimate`]: residuals and corrections.
     pub fn report_posterior(&self, readings: &Readings, out: &mut Estimate) {
         for c in 0..self.layout.len() {
