@@ -210,18 +210,17 @@ pub struct HybridConfig {
     /// recoveries); `false` is the white model error of the earlier default. (Always written,
     /// so that a scenario's fingerprint says which.)
     pub model_error_state: bool,
-    /// Pair evidence (docs/method.md, "The hybrid", pair evidence): while the most probable
-    /// hypothesis holds one of a joint's two sensors failed (its encoder or its tachometer),
-    /// the odds between "the encoder failed" and "the tachometer failed" (all else as the
-    /// winner) are not the bank's per-tick ones but accumulated over the contest's life from
-    /// the channels both can be checked against: the camera's and the pair's squared
-    /// normalised innovations (without the ln s term, which favours the hypothesis that
-    /// trusts the sharply predicted encoder whatever happened) and the stuck-reading
-    /// evidence, starting from the bank's odds when the contest opens; neither state is
-    /// restarted from the winner meanwhile. An encoder drift the camera sees weakly is then
-    /// blamed once the camera's evidence, which grows with the cube of the time, outweighs
-    /// the odds at the onset. Off by default (opt-in, measured in docs/method.md). (Written
-    /// only when set, so that fingerprints of scenarios that do not set it stay as they were.)
+    /// Pair evidence (docs/method.md, "Pair evidence"): while the most probable hypothesis
+    /// holds exactly one of a joint's two sensors failed (its encoder or its tachometer), a
+    /// contest between "the encoder failed" and "the tachometer failed" (all else as the
+    /// winner) runs two filters of its own, never restarted from the winner, and keeps the
+    /// camera's evidence between them over the contest's life (the camera model's constant
+    /// offset marginalised out); the hybrid decides with the bank's odds between the two plus
+    /// that evidence, which for a drift grows with the cube of the time where the bank's
+    /// per-tick odds stay bounded. Off by default (opt-in: measured in docs/method.md, better
+    /// on encoder drifts the camera sees, weak where the bank stops holding the drift
+    /// detected). (Written only when set, so that fingerprints of scenarios that do not set it
+    /// stay as they were.)
     #[serde(skip_serializing_if = "is_false")]
     pub pair_evidence: bool,
 }
