@@ -212,15 +212,15 @@ pub struct HybridConfig {
     pub model_error_state: bool,
     /// Pair evidence (docs/method.md, "Pair evidence"): while the most probable hypothesis
     /// holds exactly one of a joint's two sensors failed (its encoder or its tachometer), a
-    /// contest between "the encoder failed" and "the tachometer failed" (all else as the
-    /// winner) runs two filters of its own, never restarted from the winner, and keeps the
-    /// camera's evidence between them over the contest's life (the camera model's constant
-    /// offset marginalised out); the hybrid decides with the bank's odds between the two plus
-    /// that evidence, which for a drift grows with the cube of the time where the bank's
+    /// contest between "the encoder failed", "the tachometer failed" and "neither" (all else
+    /// as the winner) runs three filters of its own, never restarted from the winner, and keeps
+    /// the camera's evidence between them over the contest's life (the camera model's constant
+    /// offset marginalised out); the hybrid decides with the bank's probabilities of the three
+    /// times that evidence, which for a drift grows with the cube of the time where the bank's
     /// per-tick odds stay bounded. Off by default (opt-in: measured in docs/method.md, better
-    /// on encoder drifts the camera sees, weak where the bank stops holding the drift
-    /// detected). (Written only when set, so that fingerprints of scenarios that do not set it
-    /// stay as they were.)
+    /// on encoder drifts the camera sees; not yet screened on the development campaign in
+    /// this form). (Written only when set, so that fingerprints of scenarios that do not set
+    /// it stay as they were.)
     #[serde(skip_serializing_if = "is_false")]
     pub pair_evidence: bool,
 }
@@ -395,19 +395,19 @@ pub struct Hybrid {
     velocity_spread: Vec<f64>,
     /// The lead filter's model-error estimate, handed to the model with the velocity spread.
     model_error: Vec<f64>,
-    /// `pair_evidence`: per joint, the open contest's log odds ln p(encoder failed) /
-    /// p(tachometer failed), and this tick's slots of the two hypotheses (encoder failed,
-    /// tachometer failed).
+    /// `pair_evidence`: per joint, the open contest (its camera log odds of "encoder failed"
+    /// against "tachometer failed", and the ticks the winner has held neither), and this
+    /// tick's slots of its three hypotheses (encoder failed, tachometer failed, neither).
     contests: Vec<Option<(f64, u64)>>,
     /// Per joint and camera output: the open contest's sums over its ticks of z and z^2 for
-    /// "the encoder failed" and "the tachometer failed", and the count (5 numbers).
+    /// each of its three sides, and the count (7 numbers).
     contest_sums: Vec<f64>,
-    pair_slots: Vec<Option<(usize, usize)>>,
+    pair_slots: Vec<Option<[usize; 3]>>,
     /// Scratch per slot: this tick's squared normalised innovations of the contest's channels
     /// and stuck-reading evidence.
-    /// Per joint, the open contest's own two filters ("the encoder failed", "the tachometer
-    /// failed"), never restarted from the winner, and their normalised camera residuals of
-    /// this tick (2n x channels).
+    /// Per joint, the open contest's own three filters ("the encoder failed", "the tachometer
+    /// failed", "neither"), never restarted from the winner, and their normalised camera
+    /// residuals of this tick (3n x channels).
     contest_filters: Vec<Ekf>,
     pair_z: Vec<f64>,
     /// Per channel: scored in this tick's contests (the camera, the contested joints' sensors).
@@ -459,7 +459,7 @@ impl Hybrid {
         let restarted = vec![ekf.clone(); h];
         let probability_view = probability.clone();
         let contest_filters = if config.pair_evidence {
-            vec![ekf.clone(); 2 * n]
+            vec![ekf.clone(); 3 * n]
         } else {
             Vec::new()
         };
@@ -497,9 +497,9 @@ impl Hybrid {
             model_error: vec![0.0; n],
             contests: vec![None; n],
             pair_slots: vec![None; n],
-            contest_sums: vec![0.0; n * layout.camera_outputs() * 5],
+            contest_sums: vec![0.0; n * layout.camera_outputs() * 7],
             contest_filters,
-            pair_z: vec![f64::NAN; 2 * n * layout.len()],
+            pair_z: vec![f64::NAN; 3 * n * layout.len()],
             pair_scored: vec![false; layout.len()],
             view: probability_view,
         }
@@ -522,9 +522,10 @@ impl Hybrid {
         })
     }
 
-    /// `pair_evidence`: a contest between "joint i's encoder failed" and "its tachometer
-    /// failed" (all else as the most probable hypothesis) opens, at the bank's odds between
-    /// them, when the most probable hypothesis holds one of the two failed and not the other,
+    /// `pair_evidence`: a contest between "joint i's encoder failed", "its tachometer failed"
+    /// and "neither" (all else as the most probable hypothesis) opens, its filters started
+    /// from the bank's, when the most probable hypothesis holds one of the two failed and not
+    /// the other,
     /// and closes once it has held neither (or both) for `resync_ticks`: the bank's winner
     /// flickers between "healthy" and a failure while a fault is young, and the contest must
     /// not forget its evidence each time. Fills this tick's slots of the open contests.
@@ -551,20 +552,26 @@ impl Hybrid {
                 Some(c) => c.1 = 0,
                 None => {}
             }
-            let slots = self.pair_slot(w, e, t, e).zip(self.pair_slot(w, e, t, t));
+            let slots = match (
+                self.pair_slot(w, e, t, e),
+                self.pair_slot(w, e, t, t),
+                self.pair_slot(w, e, t, usize::MAX),
+            ) {
+                (Some(a), Some(b), Some(c)) => Some([a, b, c]),
+                _ => None,
+            };
             self.pair_slots[i] = slots;
             if self.contests[i].is_none()
-                && let Some((je, jt)) = slots
+                && let Some(js) = slots
             {
                 self.contests[i] = Some((0.0, 0));
-                let (fe, ft) = self.contest_filters.split_at_mut(2 * i + 1);
-                let (fe, ft) = (&mut fe[2 * i], &mut ft[0]);
-                fe.x.copy_from(&self.bank.filters[je].x);
-                fe.p.copy_from(&self.bank.filters[je].p);
-                ft.x.copy_from(&self.bank.filters[jt].x);
-                ft.p.copy_from(&self.bank.filters[jt].p);
+                for (side, j) in js.iter().enumerate() {
+                    let f = &mut self.contest_filters[3 * i + side];
+                    f.x.copy_from(&self.bank.filters[*j].x);
+                    f.p.copy_from(&self.bank.filters[*j].p);
+                }
                 let r = self.layout.camera_outputs();
-                self.contest_sums[i * r * 5..(i + 1) * r * 5].fill(0.0);
+                self.contest_sums[i * r * 7..(i + 1) * r * 7].fill(0.0);
             }
         }
         for c in 0..self.layout.len() {
@@ -572,12 +579,11 @@ impl Hybrid {
         }
     }
 
-    /// The open contest and side (0: the encoder failed, 1: the tachometer failed) whose
-    /// hypothesis is slot j this tick.
+    /// The open contest and side (0: the encoder failed, 1: the tachometer failed, 2:
+    /// neither) whose hypothesis is slot j this tick.
     fn contest_side(&self, j: usize) -> Option<(usize, usize)> {
         (0..self.layout.n_joints()).find_map(|i| match (self.pair_slots[i], self.contests[i]) {
-            (Some((je, _)), Some(_)) if je == j => Some((i, 0)),
-            (Some((_, jt)), Some(_)) if jt == j => Some((i, 1)),
+            (Some(js), Some(_)) => js.iter().position(|&k| k == j).map(|side| (i, side)),
             _ => None,
         })
     }
@@ -588,80 +594,85 @@ impl Hybrid {
         matches!(self.layout.channel(c), Channel::Camera(_))
     }
 
-    /// Updates each open contest's two filters with this tick's readings, at the variances of
+    /// Updates each open contest's three filters with this tick's readings, at the variances of
     /// their hypotheses in the bank, recording their normalised camera residuals.
     fn update_contests(&mut self, input: &EstimatorInput<'_>) {
         let m = self.layout.len();
         for i in 0..self.layout.n_joints() {
-            let Some((je, jt)) = self.pair_slots[i] else {
-                self.pair_z[2 * i * m..(2 * i + 2) * m].fill(f64::NAN);
+            let Some(js) = self.pair_slots[i] else {
+                self.pair_z[3 * i * m..(3 * i + 3) * m].fill(f64::NAN);
                 continue;
             };
             if self.contests[i].is_none() {
                 continue;
             }
-            for (side, j) in [(0, je), (1, jt)] {
+            for (side, j) in js.into_iter().enumerate() {
                 self.hypothesis_variances(j, input);
-                let f = &mut self.contest_filters[2 * i + side];
+                let f = &mut self.contest_filters[3 * i + side];
                 f.linearise();
                 let scored = &self.pair_scored;
                 f.update_scored(
                     input.readings,
                     &self.variances,
                     |c| scored[c],
-                    &mut self.pair_z[(2 * i + side) * m..(2 * i + side + 1) * m],
+                    &mut self.pair_z[(3 * i + side) * m..(3 * i + side + 1) * m],
                 );
             }
         }
     }
 
-    /// The contests' camera evidence after this tick, ln odds += -1/2 (chi2_E - chi2_T), and
-    /// the view of the bank's probabilities the hybrid decides with: the bank's own, with each
-    /// open contest's two hypotheses sharing their total by the bank's odds between them plus
-    /// the contest's camera evidence (the bank's per-tick odds keep what the readings of the
-    /// pair say, a stuck reading among them; the contest adds what the camera has said over the
-    /// contest's life, which the switching prior would forget).
+    /// The contests' camera evidence after this tick and the view of the bank's probabilities
+    /// the hybrid decides with: the bank's own, with each open contest's three hypotheses
+    /// sharing their total in proportion to their bank probabilities times their camera
+    /// likelihoods over the contest's life, per camera output with a constant offset
+    /// b ~ N(0, kappa) marginalised out (the GP's systematic error at the contest's poses,
+    /// kappa = camera_inflation^2 - 1 in units of the bank's camera variance): ln L = -1/2
+    /// (sum z^2 - (sum z)^2 / (N + 1 / kappa)) + terms equal for all three (docs/method.md,
+    /// "Pair evidence"). The bank's per-tick odds keep what the pair's readings say, a stuck
+    /// reading among them; the contest adds what the camera has said over its life, which the
+    /// switching prior would forget.
     fn weigh_contests(&mut self) {
         self.view.copy_from_slice(&self.bank.probability);
         if !self.config.pair_evidence {
             return;
         }
         for i in 0..self.layout.n_joints() {
-            let (Some((je, jt)), Some((odds, _))) = (self.pair_slots[i], self.contests[i].as_mut())
-            else {
+            let (Some(js), Some(_)) = (self.pair_slots[i], self.contests[i]) else {
                 continue;
             };
-            // Per camera output, each hypothesis' normalised residuals with a constant offset
-            // b ~ N(0, kappa) marginalised out (the GP's systematic error at the poses of the
-            // contest, kappa = camera_inflation^2 - 1 in units of the bank's camera variance):
-            // ln L = -1/2 (sum z^2 - (sum z)^2 / (N + 1 / kappa)) + terms equal for both.
             let m = self.layout.len();
             let cam = self.layout.group_range(crate::sensors::SensorGroup::Camera);
             let r = self.layout.camera_outputs();
             let kappa =
                 (self.config.camera_inflation * self.config.camera_inflation - 1.0).max(1e-12);
-            let mut total = 0.0;
+            let mut ll = [0.0f64; 3];
             for (o, c) in cam.enumerate() {
-                let sums = &mut self.contest_sums[(i * r + o) * 5..(i * r + o + 1) * 5];
-                let (ze, zt) = (self.pair_z[2 * i * m + c], self.pair_z[(2 * i + 1) * m + c]);
-                if ze.is_finite() && zt.is_finite() {
-                    sums[0] += ze;
-                    sums[1] += ze * ze;
-                    sums[2] += zt;
-                    sums[3] += zt * zt;
-                    sums[4] += 1.0;
+                let sums = &mut self.contest_sums[(i * r + o) * 7..(i * r + o + 1) * 7];
+                let z: [f64; 3] = std::array::from_fn(|k| self.pair_z[(3 * i + k) * m + c]);
+                if z.iter().all(|v| v.is_finite()) {
+                    for k in 0..3 {
+                        sums[2 * k] += z[k];
+                        sums[2 * k + 1] += z[k] * z[k];
+                    }
+                    sums[6] += 1.0;
                 }
-                let shrink = sums[4] + 1.0 / kappa;
-                total += -0.5 * (sums[1] - sums[0] * sums[0] / shrink)
-                    + 0.5 * (sums[3] - sums[2] * sums[2] / shrink);
+                let shrink = sums[6] + 1.0 / kappa;
+                for k in 0..3 {
+                    ll[k] += -0.5 * (sums[2 * k + 1] - sums[2 * k] * sums[2 * k] / shrink);
+                }
             }
-            *odds = total.clamp(-700.0, 700.0);
+            let best = ll.iter().copied().fold(f64::NEG_INFINITY, f64::max);
             let v = &mut self.view;
-            let total = v[je] + v[jt];
-            let tilted = v[je].ln() - v[jt].ln() + *odds;
-            let pe = total / (1.0 + (-tilted).exp());
-            v[je] = pe.max(FLOOR.value);
-            v[jt] = (total - pe).max(FLOOR.value);
+            let total: f64 = js.iter().map(|&j| v[j]).sum();
+            let w: [f64; 3] =
+                std::array::from_fn(|k| v[js[k]] * (ll[k] - best).clamp(-700.0, 0.0).exp());
+            let sw: f64 = w.iter().sum();
+            for k in 0..3 {
+                v[js[k]] = (total * w[k] / sw).max(FLOOR.value);
+            }
+            if let Some(c) = self.contests[i].as_mut() {
+                c.0 = ll[0] - ll[1];
+            }
         }
     }
 
@@ -1122,9 +1133,9 @@ impl Hybrid {
                 .predict_per_joint(&transition, |j, i| scale[j * n + i]);
             for i in 0..n {
                 if self.contests.get(i).is_some_and(|c| c.is_some()) {
-                    for side in 0..2 {
-                        let slot = self.pair_slots[i].map(|(a, b)| if side == 0 { a } else { b });
-                        let f = &mut self.contest_filters[2 * i + side];
+                    for side in 0..3 {
+                        let slot = self.pair_slots[i].map(|js| js[side]);
+                        let f = &mut self.contest_filters[3 * i + side];
                         f.predict_scaled(&transition, |k| slot.map_or(1.0, |j| scale[j * n + k]));
                     }
                 }
@@ -1218,7 +1229,7 @@ impl Estimator for Hybrid {
             if self.config.pair_evidence
                 && let Some((i, side)) = self.contest_side(winner)
             {
-                let f = &self.contest_filters[2 * i + side];
+                let f = &self.contest_filters[3 * i + side];
                 self.bank.filters[winner].x.copy_from(&f.x);
                 self.bank.filters[winner].p.copy_from(&f.p);
             }
