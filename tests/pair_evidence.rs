@@ -1,10 +1,14 @@
-//! `hybrid.pair_evidence` (opt-in; docs/method.md, "The hybrid", pair evidence): an encoder
-//! drift on a joint the camera sees moderately is blamed on the encoder once the camera's
-//! evidence, kept over the fault's life, outweighs the bank's per-tick odds; without it the
-//! hybrid blames the tachometer and the belief follows the drifting encoder. Checked on a
-//! generated arm from the tests' seed range (below 100 000: no screen and no evaluation arm),
-//! at run seeds no screen used. The same joint's tachometer bias stays blamed on the
-//! tachometer, and a healthy run raises no alarm.
+//! `hybrid.pair_evidence` (opt-in; docs/method.md, "Pair evidence"): an encoder drift on a
+//! joint the camera sees moderately is blamed on the encoder once the camera's evidence, kept
+//! over the fault's life, outweighs the bank's per-tick odds; without it the hybrid blames the
+//! tachometer and the belief follows the drifting encoder. Checked on a generated arm from the
+//! tests' seed range (below 100 000: no screen's and no evaluation arm). Not blind to the
+//! design: arm52006 belongs to the set 52001..52012 on which the two-sided version was checked
+//! (this joint at run seeds 11-13) and whose trace (arm52003) led to the third side; a joint
+//! chosen by rule from unseen arms (arm53001's joint 1, S 32, run seed 13) goes from 0.136 rad
+//! to 0.017 with the option: recovered by the campaigns' 0.02 tolerance, not within this test's
+//! 0.01. The same joint's tachometer bias stays blamed on the tachometer, and a healthy run
+//! raises no alarm.
 
 mod common;
 
@@ -13,7 +17,7 @@ use common::run_recorded;
 
 /// `aift gen-arm --seed 52006` with `aift init`'s scenario, and a fault on its first joint
 /// from 8 s (its camera sensitivity is 9.6-18 encoder sigmas per radian: moderate).
-fn arm_with(dir: &std::path::Path, fault: &str) -> std::path::PathBuf {
+fn arm_with(dir: &std::path::Path, name: &str, fault: &str) -> std::path::PathBuf {
     let urdf = dir.join("arm52006.urdf");
     let scenario = dir.join("arm52006.toml");
     if !scenario.exists() {
@@ -39,8 +43,7 @@ fn arm_with(dir: &std::path::Path, fault: &str) -> std::path::PathBuf {
         );
     }
     let text = std::fs::read_to_string(&scenario).unwrap();
-    let name = format!("arm52006_{}.toml", fault.len());
-    let path = dir.join(name);
+    let path = dir.join(format!("arm52006_{name}.toml"));
     std::fs::write(&path, format!("{text}\n{fault}")).unwrap();
     path
 }
@@ -59,6 +62,7 @@ fn pair_evidence_blames_a_drifting_encoder_the_camera_sees_and_keeps_the_rest() 
     let tmp = tempfile::tempdir().unwrap();
     let drift = arm_with(
         tmp.path(),
+        "drift",
         "[[faults]]\nchannel = \"enc1\"\nkind = \"drift\"\nrate = 0.02\nstart = 8.0\n",
     );
     let seed = 13;
@@ -84,6 +88,7 @@ fn pair_evidence_blames_a_drifting_encoder_the_camera_sees_and_keeps_the_rest() 
     // The tachometer's bias on the same joint: still the tachometer's.
     let bias = arm_with(
         tmp.path(),
+        "bias",
         "[[faults]]\nchannel = \"tach1\"\nkind = \"bias\"\noffset = 0.1\nstart = 8.0\n",
     );
     let (r, _) = run_recorded(&setup(&bias, true), Method::Hybrid, seed, None);
@@ -91,7 +96,7 @@ fn pair_evidence_blames_a_drifting_encoder_the_camera_sees_and_keeps_the_rest() 
     assert!(r.max_final_error < 0.01, "{:?}", r.final_error_per_joint);
 
     // Healthy: no alarm.
-    let healthy = arm_with(tmp.path(), "");
+    let healthy = arm_with(tmp.path(), "healthy", "");
     let (h, _) = run_recorded(&setup(&healthy, true), Method::Hybrid, seed, None);
     assert_eq!(h.false_alarms, 0);
     assert!(h.max_final_error < 0.01, "{:?}", h.final_error_per_joint);
@@ -105,6 +110,7 @@ fn pair_evidence_off_is_the_default_and_leaves_runs_unchanged() {
     let tmp = tempfile::tempdir().unwrap();
     let drift = arm_with(
         tmp.path(),
+        "drift",
         "[[faults]]\nchannel = \"enc1\"\nkind = \"drift\"\nrate = 0.02\nstart = 8.0\n",
     );
     let plain = {

@@ -395,23 +395,19 @@ pub struct Hybrid {
     velocity_spread: Vec<f64>,
     /// The lead filter's model-error estimate, handed to the model with the velocity spread.
     model_error: Vec<f64>,
-    /// `pair_evidence`: per joint, the open contest (its camera log odds of "encoder failed"
-    /// against "tachometer failed", and the ticks the winner has held neither), and this
-    /// tick's slots of its three hypotheses (encoder failed, tachometer failed, neither).
-    contests: Vec<Option<(f64, u64)>>,
+    /// `pair_evidence`: per joint, whether a contest is open and, if so, for how many ticks
+    /// the winner has held neither of the joint's sensors failed (or both).
+    contests: Vec<Option<u64>>,
     /// Per joint and camera output: the open contest's sums over its ticks of z and z^2 for
     /// each of its three sides, and the count (7 numbers).
     contest_sums: Vec<f64>,
+    /// Per joint, this tick's bank slots of the open contest's three sides (the encoder
+    /// failed, the tachometer failed, neither).
     pair_slots: Vec<Option<[usize; 3]>>,
-    /// Scratch per slot: this tick's squared normalised innovations of the contest's channels
-    /// and stuck-reading evidence.
-    /// Per joint, the open contest's own three filters ("the encoder failed", "the tachometer
-    /// failed", "neither"), never restarted from the winner, and their normalised camera
-    /// residuals of this tick (3n x channels).
+    /// Per joint, the open contest's own three filters, never restarted from the winner, and
+    /// their normalised camera residuals of this tick (3n x channels).
     contest_filters: Vec<Ekf>,
     pair_z: Vec<f64>,
-    /// Per channel: scored in this tick's contests (the camera, the contested joints' sensors).
-    pair_scored: Vec<bool>,
     /// The bank's probabilities with the contests' camera evidence (`pair_evidence`; otherwise
     /// a copy): what the winner, the precisions and the re-anchoring are decided with.
     view: Vec<f64>,
@@ -500,20 +496,19 @@ impl Hybrid {
             contest_sums: vec![0.0; n * layout.camera_outputs() * 7],
             contest_filters,
             pair_z: vec![f64::NAN; 3 * n * layout.len()],
-            pair_scored: vec![false; layout.len()],
             view: probability_view,
         }
     }
 
     /// The active slot that holds failed what hypothesis `w` does apart from joint sensors `e`
-    /// and `t`, and of those two only `add`.
-    fn pair_slot(&self, w: usize, e: usize, t: usize, add: usize) -> Option<usize> {
+    /// and `t`, and of those two only `add` (none: neither).
+    fn pair_slot(&self, w: usize, e: usize, t: usize, add: Option<usize>) -> Option<usize> {
         let keys = self.base_failed.len();
         (0..self.bank.len()).find(|&j| {
             self.bank.active[j]
                 && (0..keys).all(|k| {
                     let want = if k == e || k == t {
-                        k == add
+                        add == Some(k)
                     } else {
                         self.holds_failed(w, k)
                     };
@@ -525,8 +520,8 @@ impl Hybrid {
     /// `pair_evidence`: a contest between "joint i's encoder failed", "its tachometer failed"
     /// and "neither" (all else as the most probable hypothesis) opens, its filters started
     /// from the bank's, when the most probable hypothesis holds one of the two failed and not
-    /// the other,
-    /// and closes once it has held neither (or both) for `resync_ticks`: the bank's winner
+    /// the other, and closes once it has held neither (or both) for `resync_ticks`: the bank's
+    /// winner
     /// flickers between "healthy" and a failure while a fault is young, and the contest must
     /// not forget its evidence each time. Fills this tick's slots of the open contests.
     fn find_pairs(&mut self) {
@@ -541,21 +536,21 @@ impl Hybrid {
                     self.pair_slots[i] = None;
                     continue;
                 }
-                Some(c) if !one => {
-                    c.1 += 1;
-                    if c.1 >= patience {
+                Some(idle) if !one => {
+                    *idle += 1;
+                    if *idle >= patience {
                         self.contests[i] = None;
                         self.pair_slots[i] = None;
                         continue;
                     }
                 }
-                Some(c) => c.1 = 0,
+                Some(idle) => *idle = 0,
                 None => {}
             }
             let slots = match (
-                self.pair_slot(w, e, t, e),
-                self.pair_slot(w, e, t, t),
-                self.pair_slot(w, e, t, usize::MAX),
+                self.pair_slot(w, e, t, Some(e)),
+                self.pair_slot(w, e, t, Some(t)),
+                self.pair_slot(w, e, t, None),
             ) {
                 (Some(a), Some(b), Some(c)) => Some([a, b, c]),
                 _ => None,
@@ -564,7 +559,7 @@ impl Hybrid {
             if self.contests[i].is_none()
                 && let Some(js) = slots
             {
-                self.contests[i] = Some((0.0, 0));
+                self.contests[i] = Some(0);
                 for (side, j) in js.iter().enumerate() {
                     let f = &mut self.contest_filters[3 * i + side];
                     f.x.copy_from(&self.bank.filters[*j].x);
@@ -573,9 +568,6 @@ impl Hybrid {
                 let r = self.layout.camera_outputs();
                 self.contest_sums[i * r * 7..(i + 1) * r * 7].fill(0.0);
             }
-        }
-        for c in 0..self.layout.len() {
-            self.pair_scored[c] = self.contest_channel(c);
         }
     }
 
@@ -588,16 +580,11 @@ impl Hybrid {
         })
     }
 
-    /// Whether channel c is scored in the contests: the camera's outputs and the contested
-    /// joints' encoders and tachometers.
-    fn contest_channel(&self, c: usize) -> bool {
-        matches!(self.layout.channel(c), Channel::Camera(_))
-    }
-
     /// Updates each open contest's three filters with this tick's readings, at the variances of
     /// their hypotheses in the bank, recording their normalised camera residuals.
     fn update_contests(&mut self, input: &EstimatorInput<'_>) {
         let m = self.layout.len();
+        let camera = self.layout.group_range(crate::sensors::SensorGroup::Camera);
         for i in 0..self.layout.n_joints() {
             let Some(js) = self.pair_slots[i] else {
                 self.pair_z[3 * i * m..(3 * i + 3) * m].fill(f64::NAN);
@@ -610,11 +597,10 @@ impl Hybrid {
                 self.hypothesis_variances(j, input);
                 let f = &mut self.contest_filters[3 * i + side];
                 f.linearise();
-                let scored = &self.pair_scored;
                 f.update_scored(
                     input.readings,
                     &self.variances,
-                    |c| scored[c],
+                    |c| camera.contains(&c),
                     &mut self.pair_z[(3 * i + side) * m..(3 * i + side + 1) * m],
                 );
             }
@@ -636,15 +622,14 @@ impl Hybrid {
         if !self.config.pair_evidence {
             return;
         }
+        let m = self.layout.len();
+        let r = self.layout.camera_outputs();
+        let kappa = (self.config.camera_inflation * self.config.camera_inflation - 1.0).max(1e-12);
         for i in 0..self.layout.n_joints() {
             let (Some(js), Some(_)) = (self.pair_slots[i], self.contests[i]) else {
                 continue;
             };
-            let m = self.layout.len();
             let cam = self.layout.group_range(crate::sensors::SensorGroup::Camera);
-            let r = self.layout.camera_outputs();
-            let kappa =
-                (self.config.camera_inflation * self.config.camera_inflation - 1.0).max(1e-12);
             let mut ll = [0.0f64; 3];
             for (o, c) in cam.enumerate() {
                 let sums = &mut self.contest_sums[(i * r + o) * 7..(i * r + o + 1) * 7];
@@ -669,9 +654,6 @@ impl Hybrid {
             let sw: f64 = w.iter().sum();
             for k in 0..3 {
                 v[js[k]] = (total * w[k] / sw).max(FLOOR.value);
-            }
-            if let Some(c) = self.contests[i].as_mut() {
-                c.0 = ll[0] - ll[1];
             }
         }
     }
@@ -721,7 +703,8 @@ impl Hybrid {
     /// The hypotheses' probabilities by slot: the base (slot 0), the base with key k toggled
     /// (slot 1 + k; the keys are each encoder and tachometer, then the camera with
     /// `camera = "bank"`, then with `actuators` each joint's actuator and the external torque), the base with its last failure swapped for key k (slot 1 + K + k; 0
-    /// while inactive). `failed_channels` says what the base holds.
+    /// while inactive). `failed_channels` says what the base holds. With `pair_evidence`, the
+    /// view the hybrid decides with (the bank's, with the open contests' camera evidence).
     pub fn probabilities(&self) -> &[f64] {
         &self.view
     }
@@ -1132,7 +1115,7 @@ impl Hybrid {
             self.bank
                 .predict_per_joint(&transition, |j, i| scale[j * n + i]);
             for i in 0..n {
-                if self.contests.get(i).is_some_and(|c| c.is_some()) {
+                if self.contests[i].is_some() {
                     for side in 0..3 {
                         let slot = self.pair_slots[i].map(|js| js[side]);
                         let f = &mut self.contest_filters[3 * i + side];

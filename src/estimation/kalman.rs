@@ -534,8 +534,8 @@ impl Ekf {
 
     /// [`Self::update`] that also writes, for each channel `scored` picks, its normalised
     /// sequential innovation nu / sqrt(s) (as the log-likelihood takes it; NaN when the channel
-    /// has no reading) into `z`: what the hybrid's pair evidence compares between two
-    /// hypotheses (docs/method.md, "The hybrid", pair evidence).
+    /// has no reading) into `z`: what the hybrid's pair evidence compares between hypotheses
+    /// (docs/method.md, "Pair evidence").
     pub fn update_scored(
         &mut self,
         readings: &Readings,
