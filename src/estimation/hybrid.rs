@@ -217,11 +217,11 @@ pub struct HybridConfig {
     /// the camera's evidence between them over the contest's life (the camera model's constant
     /// offset marginalised out); the hybrid decides with the bank's probabilities of the three
     /// times that evidence, which for a drift grows with the cube of the time where the bank's
-    /// per-tick odds stay bounded. Off by default (opt-in: measured in docs/method.md, better
-    /// on encoder drifts the camera sees; not yet screened on the development campaign in
-    /// this form). (Written only when set, so that fingerprints of scenarios that do not set
-    /// it stay as they were.)
-    #[serde(skip_serializing_if = "is_false")]
+    /// per-tick odds stay bounded. On by default since 2026-12-07 (docs/method.md, "Pair
+    /// evidence": better on encoder drifts the camera sees, no cell of the development
+    /// campaign worse); `false` is the hybrid of earlier builds. (Written only when off, so
+    /// that fingerprints of scenarios that do not set it stay as they were.)
+    #[serde(skip_serializing_if = "is_true")]
     pub pair_evidence: bool,
 }
 
@@ -243,7 +243,7 @@ impl Default for HybridConfig {
             actuator_broad: 100.0,
             restart_ruled_out: true,
             model_error_state: true,
-            pair_evidence: false,
+            pair_evidence: true,
         }
     }
 }
@@ -316,6 +316,10 @@ impl HybridConfig {
 
 fn is_false(v: &bool) -> bool {
     !*v
+}
+
+fn is_true(v: &bool) -> bool {
+    *v
 }
 
 fn is_default_actuator_broad(v: &f64) -> bool {
