@@ -217,11 +217,12 @@ pub struct HybridConfig {
     /// the camera's evidence between them over the contest's life (the camera model's constant
     /// offset marginalised out); the hybrid decides with the bank's probabilities of the three
     /// times that evidence, which for a drift grows with the cube of the time where the bank's
-    /// per-tick odds stay bounded. On by default since 2026-12-07 (docs/method.md, "Pair
-    /// evidence": better on encoder drifts the camera sees, no cell of the development
-    /// campaign worse); `false` is the hybrid of earlier builds. (Written only when off, so
-    /// that fingerprints of scenarios that do not set it stay as they were.)
-    #[serde(skip_serializing_if = "is_true")]
+    /// per-tick odds stay bounded. Off by default (opt-in; measured in docs/method.md: better
+    /// on encoder drifts the camera sees, on the development campaign too, but on the
+    /// evaluation campaign a tachometer bias on a weakly seen joint ran away, 0.86 rad, and
+    /// the cells worse than no-FT rose from 4 to 13). (Written only when set, so that
+    /// fingerprints of scenarios that do not set it stay as they were.)
+    #[serde(skip_serializing_if = "is_false")]
     pub pair_evidence: bool,
 }
 
@@ -243,7 +244,7 @@ impl Default for HybridConfig {
             actuator_broad: 100.0,
             restart_ruled_out: true,
             model_error_state: true,
-            pair_evidence: true,
+            pair_evidence: false,
         }
     }
 }
@@ -316,10 +317,6 @@ impl HybridConfig {
 
 fn is_false(v: &bool) -> bool {
     !*v
-}
-
-fn is_true(v: &bool) -> bool {
-    *v
 }
 
 fn is_default_actuator_broad(v: &f64) -> bool {
