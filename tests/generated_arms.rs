@@ -20,6 +20,23 @@ fn generate_and_init(
     (scenario, init)
 }
 
+/// `generate_and_init` (which must accept the arm), then the healthy scenario init wrote without
+/// fault tolerance on the articulated engine, run seed 1: the result and the joint count.
+fn init_and_run_healthy(seed: u64, dir: &std::path::Path) -> (aift::scenario::RunResult, usize) {
+    let (scenario, init) = generate_and_init(seed, dir);
+    assert_eq!(
+        init.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&init.stderr)
+    );
+    let set = ["plant.engine=\"articulated\"".to_string()];
+    let loaded = aift::scenario::LoadedScenario::from_file(&scenario, &set).unwrap();
+    let setup = aift::scenario::RunSetup::prepare(loaded).unwrap();
+    let (r, _) = common::run_recorded(&setup, aift::scenario::Method::NoFt, 1, None);
+    (r, setup.model.joints.len())
+}
+
 #[test]
 fn the_same_seed_gives_the_same_arm_and_the_joint_count_asked_for() {
     let tmp = tempfile::tempdir().unwrap();
@@ -75,23 +92,11 @@ fn init_holds_generated_arms_it_never_saw() {
     let tmp = tempfile::tempdir().unwrap();
     let mut misses = Vec::new();
     for seed in 77001..77011u64 {
-        let (scenario, init) = generate_and_init(seed, tmp.path());
-        assert_eq!(
-            init.status.code(),
-            Some(0),
-            "{}",
-            String::from_utf8_lossy(&init.stderr)
-        );
-        let set = ["plant.engine=\"articulated\"".to_string()];
-        let loaded = aift::scenario::LoadedScenario::from_file(&scenario, &set).unwrap();
-        let setup = aift::scenario::RunSetup::prepare(loaded).unwrap();
-        let (r, _) = common::run_recorded(&setup, aift::scenario::Method::NoFt, 1, None);
+        let (r, joints) = init_and_run_healthy(seed, tmp.path());
         if r.outcome.name() != "completed" || r.max_final_error > 0.05 {
             misses.push(format!(
-                "seed {seed}: {} joints, {:?}, final error {:?}",
-                setup.model.joints.len(),
-                r.outcome,
-                r.final_error_per_joint
+                "seed {seed}: {joints} joints, {:?}, final error {:?}",
+                r.outcome, r.final_error_per_joint
             ));
         }
     }
@@ -173,17 +178,7 @@ fn an_effort_limited_joint_settles_before_its_target_switches() {
     let tmp = tempfile::tempdir().unwrap();
     let mut misses = Vec::new();
     for seed in [79001u64, 79007, 79039, 79060] {
-        let (scenario, init) = generate_and_init(seed, tmp.path());
-        assert_eq!(
-            init.status.code(),
-            Some(0),
-            "{}",
-            String::from_utf8_lossy(&init.stderr)
-        );
-        let set = ["plant.engine=\"articulated\"".to_string()];
-        let loaded = aift::scenario::LoadedScenario::from_file(&scenario, &set).unwrap();
-        let setup = aift::scenario::RunSetup::prepare(loaded).unwrap();
-        let (r, _) = common::run_recorded(&setup, aift::scenario::Method::NoFt, 1, None);
+        let (r, _) = init_and_run_healthy(seed, tmp.path());
         eprintln!("seed {seed}: {:?}", r.final_error_per_joint);
         if r.outcome.name() != "completed" || r.max_final_error > 0.004 {
             misses.push(format!(

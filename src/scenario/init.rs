@@ -1019,19 +1019,23 @@ fn prune(table: &mut toml_edit::Table, defaults: &toml_edit::Table, prefix: &str
 mod tests {
     use super::*;
 
+    /// The arm `aift gen-arm --seed seed` writes (2-7 joints).
+    fn generated_model(seed: u64) -> Arc<ArmModel> {
+        use crate::arm::generate::{GenerateOptions, generate_arm};
+        let text = generate_arm(&GenerateOptions {
+            seed,
+            joints: (2, 7),
+        })
+        .unwrap();
+        Arc::new(crate::arm::parse_urdf(&text, Path::new("generated.urdf")).unwrap())
+    }
+
     /// On arms nobody tuned for (generated, 2-7 joints), the gains keep every joint's and every
     /// coupled mode's per-tick turn within the limits, at every pose the gains were taken from.
     #[test]
     fn gains_respect_the_discrete_time_limits_on_generated_arms() {
-        use crate::arm::generate::{GenerateOptions, generate_arm};
         for seed in 100..120 {
-            let text = generate_arm(&GenerateOptions {
-                seed,
-                joints: (2, 7),
-            })
-            .unwrap();
-            let model =
-                Arc::new(crate::arm::parse_urdf(&text, Path::new("generated.urdf")).unwrap());
+            let model = generated_model(seed);
             let n = model.joints.len();
             let poses = start_and_targets(&model);
             let g = gains_from_dynamics(&model, &poses);
@@ -1073,16 +1077,9 @@ mod tests {
     /// real parts, computed here, are negative).
     #[test]
     fn the_integral_fits_a_target_hold_within_its_stability_margin() {
-        use crate::arm::generate::{GenerateOptions, generate_arm};
         let mut raised_to_the_margin = 0;
         for seed in 100..140 {
-            let text = generate_arm(&GenerateOptions {
-                seed,
-                joints: (2, 7),
-            })
-            .unwrap();
-            let model =
-                Arc::new(crate::arm::parse_urdf(&text, Path::new("generated.urdf")).unwrap());
+            let model = generated_model(seed);
             let poses = start_and_targets(&model);
             let g = gains_from_dynamics(&model, &poses);
             for (i, j) in model.joints.iter().enumerate() {
