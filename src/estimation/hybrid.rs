@@ -219,8 +219,8 @@ pub struct HybridConfig {
     /// times that evidence, which for a drift grows with the cube of the time where the bank's
     /// per-tick odds stay bounded. Off by default (opt-in; measured in docs/method.md: better
     /// on encoder drifts the camera sees, on the development campaign too, but on the
-    /// evaluation campaign a tachometer bias on a weakly seen joint ran away, 0.86 rad, and
-    /// the cells worse than no-FT rose from 4 to 13). (Written only when set, so that
+    /// evaluation campaign a tachometer bias on a joint the camera cannot see ran away, 0.8-0.9
+    /// rad, and the cells worse than no-FT rose from 4 to 13). (Written only when set, so that
     /// fingerprints of scenarios that do not set it stay as they were.)
     #[serde(skip_serializing_if = "is_false")]
     pub pair_evidence: bool,
@@ -626,13 +626,13 @@ impl Hybrid {
         let m = self.layout.len();
         let r = self.layout.camera_outputs();
         let kappa = (self.config.camera_inflation * self.config.camera_inflation - 1.0).max(1e-12);
+        let cam = self.layout.group_range(crate::sensors::SensorGroup::Camera);
         for i in 0..self.layout.n_joints() {
             let (Some(js), Some(_)) = (self.pair_slots[i], self.contests[i]) else {
                 continue;
             };
-            let cam = self.layout.group_range(crate::sensors::SensorGroup::Camera);
             let mut ll = [0.0f64; 3];
-            for (o, c) in cam.enumerate() {
+            for (o, c) in cam.clone().enumerate() {
                 let sums = &mut self.contest_sums[(i * r + o) * 7..(i * r + o + 1) * 7];
                 let z: [f64; 3] = std::array::from_fn(|k| self.pair_z[(3 * i + k) * m + c]);
                 if z.iter().all(|v| v.is_finite()) {
