@@ -47,7 +47,7 @@ use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
 use super::bank::{Floor, HypothesisBank};
-use super::kalman::Ekf;
+use super::kalman::{CameraReference, Ekf};
 use super::models::{ArmTransition, ConstantVelocity, ObservationModel, TransitionModel};
 use super::uaic::{PriorMode, Uaic, UpdateScheme};
 use super::{Estimate, Estimator, EstimatorInput};
@@ -214,14 +214,15 @@ pub struct HybridConfig {
     /// holds exactly one of a joint's two sensors failed (its encoder or its tachometer), a
     /// contest between "the encoder failed", "the tachometer failed" and "neither" (all else
     /// as the winner) runs three filters of its own, never restarted from the winner, and keeps
-    /// the camera's evidence between them over the contest's life (the camera model's constant
-    /// offset marginalised out); the hybrid decides with the bank's probabilities of the three
-    /// times that evidence, which for a drift grows with the cube of the time where the bank's
-    /// per-tick odds stay bounded. Off by default (opt-in; measured in docs/method.md: better
-    /// on encoder drifts the camera sees, on the development campaign too, but on the
-    /// evaluation campaign a tachometer bias on a joint the camera cannot see ran away, 0.8-0.9
-    /// rad, and the cells worse than no-FT rose from 4 to 13). (Written only when set, so that
-    /// fingerprints of scenarios that do not set it stay as they were.)
+    /// the camera's evidence between them over the contest's life: only what the camera
+    /// model's column of that joint says, with its constant offset and its own slope
+    /// uncertainty marginalised out, and never more than the camera could resolve between the
+    /// sides; the hybrid decides with the bank's probabilities of the three times that
+    /// evidence, which for a drift grows with the cube of the time where the bank's per-tick
+    /// odds stay bounded. Off by default (opt-in; measured in docs/method.md: better on
+    /// encoder drifts the camera sees; its first version, scored on the sides' whole residuals,
+    /// ran a tachometer bias on a joint the camera cannot see away). (Written only when set, so
+    /// that fingerprints of scenarios that do not set it stay as they were.)
     #[serde(skip_serializing_if = "is_false")]
     pub pair_evidence: bool,
 }
@@ -325,6 +326,28 @@ fn is_default_actuator_broad(v: &f64) -> bool {
 
 /// The hybrid's probability floor: 1e-300, against underflow only (the switching prior keeps
 /// every hypothesis revivable), not renormalised.
+/// Numbers a contest keeps per joint and camera output (`Hybrid::contest_sums`).
+const CONTEST_SUMS: usize = 16;
+
+/// The pairs of a contest's sides (0: the encoder failed, 1: the tachometer failed, 2: neither).
+const CONTEST_PAIRS: [(usize, usize); 3] = [(0, 1), (0, 2), (1, 2)];
+
+/// The log marginal likelihood (up to terms equal for every side) of normalised residuals r_t
+/// = b + eps w_t + e_t, e_t ~ N(0, 1), with an offset b ~ N(0, kappa) and a slope error eps ~
+/// N(0, v) marginalised, from the sums [r, r^2, w, w^2, w r] and the count (docs/method.md,
+/// "Pair evidence"): -1/2 (sum r^2 - c' A^-1 c) - 1/2 ln det(I + L0 X'X), X = [1, w],
+/// L0 = diag(kappa, v), A = L0^-1 + X'X, c = X' r; written with B = I + X'X L0 so that v = 0
+/// (a slope taken as exact) needs no division.
+fn contest_log_likelihood(sums: &[f64], count: f64, kappa: f64, v: f64) -> f64 {
+    let [sr, srr, sw, sww, swr] = [sums[0], sums[1], sums[2], sums[3], sums[4]];
+    let (b00, b01, b10, b11) = (1.0 + count * kappa, sw * v, sw * kappa, 1.0 + sww * v);
+    let det = b00 * b11 - b01 * b10;
+    let y0 = (b11 * sr - b01 * swr) / det;
+    let y1 = (b00 * swr - b10 * sr) / det;
+    let explained = sr * kappa * y0 + swr * v * y1;
+    -0.5 * (srr - explained) - 0.5 * det.ln()
+}
+
 const FLOOR: Floor = Floor {
     value: 1e-300,
     renormalise: false,
@@ -399,9 +422,21 @@ pub struct Hybrid {
     /// `pair_evidence`: per joint, whether a contest is open and, if so, for how many ticks
     /// the winner has held neither of the joint's sensors failed (or both).
     contests: Vec<Option<u64>>,
-    /// Per joint and camera output: the open contest's sums over its ticks of z and z^2 for
-    /// each of its three sides, and the count (7 numbers).
+    /// Per joint and camera output: the open contest's sums over its ticks, for each of its
+    /// three sides, of r, r^2, w, w^2 and w r (r: the side's normalised camera residual, w: its
+    /// regressor on the camera model's slope error), and the count (16 numbers).
     contest_sums: Vec<f64>,
+    /// Per joint: the posterior variance of the camera model's slope along the joint where the
+    /// open contest is, and the ticks since it was taken.
+    slope_variance: Vec<f64>,
+    slope_age: Vec<u64>,
+    /// Per joint: the "neither" side's position of the joint when the contest opened (where
+    /// the slope error's contribution is taken as zero; the offset absorbs the rest).
+    slope_anchor: Vec<f64>,
+    /// Per joint: for each pair of sides (E-T, E-N, T-N), the sum over the contest's ticks and
+    /// camera outputs of the squared difference of their camera predictions in camera sigmas,
+    /// by joint i's column: the separation the camera could resolve.
+    contest_reach: Vec<f64>,
     /// Per joint, this tick's bank slots of the open contest's three sides (the encoder
     /// failed, the tachometer failed, neither).
     pair_slots: Vec<Option<[usize; 3]>>,
@@ -409,6 +444,17 @@ pub struct Hybrid {
     /// their normalised camera residuals of this tick (3n x channels).
     contest_filters: Vec<Ekf>,
     pair_z: Vec<f64>,
+    /// Per side: sqrt(s) per channel (as `pair_z`); per joint: the winner's camera Jacobian
+    /// column of the joint per camera output, and each side's predicted position of it.
+    pair_spread: Vec<f64>,
+    pair_column: Vec<f64>,
+    pair_q: Vec<f64>,
+    /// Scratch: the winner's camera linearisation (outputs, Jacobian, positions), which every
+    /// side of a contest is scored against with its own position of the contest's joint.
+    reference_g: Vec<f64>,
+    reference_jac: Vec<f64>,
+    reference_q: Vec<f64>,
+    reference_column: Vec<f64>,
     /// The bank's probabilities with the contests' camera evidence (`pair_evidence`; otherwise
     /// a copy): what the winner, the precisions and the re-anchoring are decided with.
     view: Vec<f64>,
@@ -494,9 +540,20 @@ impl Hybrid {
             model_error: vec![0.0; n],
             contests: vec![None; n],
             pair_slots: vec![None; n],
-            contest_sums: vec![0.0; n * layout.camera_outputs() * 7],
+            contest_sums: vec![0.0; n * layout.camera_outputs() * CONTEST_SUMS],
+            slope_variance: vec![0.0; n],
+            slope_age: vec![0; n],
+            slope_anchor: vec![0.0; n],
+            contest_reach: vec![0.0; 3 * n],
             contest_filters,
             pair_z: vec![f64::NAN; 3 * n * layout.len()],
+            pair_spread: vec![f64::NAN; 3 * n * layout.len()],
+            pair_column: vec![0.0; n * layout.camera_outputs()],
+            pair_q: vec![f64::NAN; 3 * n],
+            reference_g: vec![0.0; layout.camera_outputs()],
+            reference_jac: vec![0.0; layout.camera_outputs() * n],
+            reference_q: vec![0.0; n],
+            reference_column: vec![0.0; layout.camera_outputs()],
             view: probability_view,
         }
     }
@@ -566,8 +623,11 @@ impl Hybrid {
                     f.x.copy_from(&self.bank.filters[*j].x);
                     f.p.copy_from(&self.bank.filters[*j].p);
                 }
-                let r = self.layout.camera_outputs();
-                self.contest_sums[i * r * 7..(i + 1) * r * 7].fill(0.0);
+                let r = self.layout.camera_outputs() * CONTEST_SUMS;
+                self.contest_sums[i * r..(i + 1) * r].fill(0.0);
+                self.slope_age[i] = 0;
+                self.slope_anchor[i] = self.contest_filters[3 * i + 2].x[i];
+                self.contest_reach[3 * i..3 * i + 3].fill(0.0);
             }
         }
     }
@@ -586,7 +646,16 @@ impl Hybrid {
     fn update_contests(&mut self, input: &EstimatorInput<'_>) {
         let m = self.layout.len();
         let camera = self.layout.group_range(crate::sensors::SensorGroup::Camera);
-        for i in 0..self.layout.n_joints() {
+        // Every side is scored against the winner's camera linearisation with its own position
+        // of joint i: the contest is about joint i, and what the sides' filters make of the
+        // other joints (or the camera model's curvature between their poses) is not its question.
+        let w = self.view_winner();
+        let n = self.layout.n_joints();
+        let (g, jac, at) = self.bank.filters[w].camera_linearisation();
+        self.reference_g.copy_from_slice(g);
+        self.reference_jac.copy_from_slice(jac);
+        self.reference_q.copy_from_slice(&at[..n]);
+        for i in 0..n {
             let Some(js) = self.pair_slots[i] else {
                 self.pair_z[3 * i * m..(3 * i + 3) * m].fill(f64::NAN);
                 continue;
@@ -594,29 +663,62 @@ impl Hybrid {
             if self.contests[i].is_none() {
                 continue;
             }
+            let r = self.layout.camera_outputs();
+            for o in 0..r {
+                self.reference_column[o] = self.reference_jac[o * n + i];
+                self.pair_column[i * r + o] = self.reference_jac[o * n + i];
+            }
+            let period = self.config.resync_ticks.max(1);
+            if self.slope_age[i].is_multiple_of(period) {
+                self.slope_variance[i] = self.bank.filters[w]
+                    .observation()
+                    .slope_variance(&self.reference_q, i);
+            }
+            self.slope_age[i] += 1;
+            // Taken out while the sides' filters are updated (no allocation).
+            let (g, column) = (
+                std::mem::take(&mut self.reference_g),
+                std::mem::take(&mut self.reference_column),
+            );
+            let reference = CameraReference {
+                joint: i,
+                g: &g,
+                column: &column,
+                position: self.reference_q[i],
+            };
             for (side, j) in js.into_iter().enumerate() {
                 self.hypothesis_variances(j, input);
                 let f = &mut self.contest_filters[3 * i + side];
                 f.linearise();
+                self.pair_q[3 * i + side] = f.x[i];
+                let at = (3 * i + side) * m..(3 * i + side + 1) * m;
                 f.update_scored(
                     input.readings,
                     &self.variances,
                     |c| camera.contains(&c),
-                    &mut self.pair_z[(3 * i + side) * m..(3 * i + side + 1) * m],
+                    Some(&reference),
+                    &mut self.pair_z[at.clone()],
+                    &mut self.pair_spread[at],
                 );
             }
+            self.reference_g = g;
+            self.reference_column = column;
         }
     }
 
     /// The contests' camera evidence after this tick and the view of the bank's probabilities
     /// the hybrid decides with: the bank's own, with each open contest's three hypotheses
     /// sharing their total in proportion to their bank probabilities times their camera
-    /// likelihoods over the contest's life, per camera output with a constant offset
-    /// b ~ N(0, kappa) marginalised out (the GP's systematic error at the contest's poses,
-    /// kappa = camera_inflation^2 - 1 in units of the bank's camera variance): ln L = -1/2
-    /// (sum z^2 - (sum z)^2 / (N + 1 / kappa)) + terms equal for all three (docs/method.md,
-    /// "Pair evidence"). The bank's per-tick odds keep what the pair's readings say, a stuck
-    /// reading among them; the contest adds what the camera has said over its life, which the
+    /// likelihoods over the contest's life (docs/method.md, "Pair evidence"). Only what
+    /// joint i's column of the camera model says counts: every side's residual is taken against
+    /// the winner's camera linearisation moved by the column times the side's position of the
+    /// joint (`update_contests`); per camera
+    /// output a constant offset b ~ N(0, kappa) (kappa = camera_inflation^2 - 1 in units of
+    /// the bank's camera variance) and an error of the column eps ~ N(0, v) (the GP's own
+    /// posterior variance of its slope) are marginalised out ([`contest_log_likelihood`]); and
+    /// no side trails the best by more than the camera could have resolved between their
+    /// positions. The bank's per-tick odds keep what the pair's readings say, a stuck reading
+    /// among them; the contest adds what the camera has said over its life, which the
     /// switching prior would forget.
     fn weigh_contests(&mut self) {
         self.view.copy_from_slice(&self.bank.probability);
@@ -632,22 +734,61 @@ impl Hybrid {
                 continue;
             };
             let mut ll = [0.0f64; 3];
+            let v = self.slope_variance[i];
+            let q = &self.pair_q[3 * i..3 * i + 3];
             for (o, c) in cam.clone().enumerate() {
-                let sums = &mut self.contest_sums[(i * r + o) * 7..(i * r + o + 1) * 7];
+                let sums = &mut self.contest_sums
+                    [(i * r + o) * CONTEST_SUMS..(i * r + o + 1) * CONTEST_SUMS];
+                // Each side's residual against the winner's linearisation with its own position of
+                // the joint, and the slope error's regressor, its distance from the anchor,
+                // w = (q_k - anchor) / sqrt(s).
                 let z: [f64; 3] = std::array::from_fn(|k| self.pair_z[(3 * i + k) * m + c]);
-                if z.iter().all(|v| v.is_finite()) {
+                let spread: [f64; 3] =
+                    std::array::from_fn(|k| self.pair_spread[(3 * i + k) * m + c]);
+                let column = self.pair_column[i * r + o];
+                if z.iter().chain(&spread).chain(q).all(|x| x.is_finite()) {
+                    let anchor = self.slope_anchor[i];
                     for k in 0..3 {
-                        sums[2 * k] += z[k];
-                        sums[2 * k + 1] += z[k] * z[k];
+                        let res = z[k];
+                        let w = (q[k] - anchor) / spread[k];
+                        let side = &mut sums[5 * k..5 * k + 5];
+                        side[0] += res;
+                        side[1] += res * res;
+                        side[2] += w;
+                        side[3] += w * w;
+                        side[4] += w * res;
                     }
-                    sums[6] += 1.0;
+                    sums[15] += 1.0;
+                    // The column the camera model is sure of: shrunk by the share of its
+                    // squared slope that is not its own uncertainty, m^2 / (m^2 + v).
+                    let credible =
+                        column * column * column / (column * column + v).max(f64::MIN_POSITIVE);
+                    let reach = &mut self.contest_reach[3 * i..3 * i + 3];
+                    for (p, (a, b)) in CONTEST_PAIRS.iter().enumerate() {
+                        let d = credible * (q[*a] - q[*b]) / spread[2];
+                        reach[p] += d * d;
+                    }
                 }
-                let shrink = sums[6] + 1.0 / kappa;
                 for k in 0..3 {
-                    ll[k] += -0.5 * (sums[2 * k + 1] - sums[2 * k] * sums[2 * k] / shrink);
+                    ll[k] += contest_log_likelihood(&sums[5 * k..5 * k + 5], sums[15], kappa, v);
                 }
             }
             let best = ll.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            // No side trails the best by more than the camera could have resolved between
+            // them: D / 2 + 3 sqrt(D) for a separation D (the log odds' mean and three of its
+            // standard deviations were the camera model exact); more is the model's error.
+            let lead = (0..3).find(|&k| ll[k] == best).unwrap_or(0);
+            for k in 0..3 {
+                if k == lead {
+                    continue;
+                }
+                let p = CONTEST_PAIRS
+                    .iter()
+                    .position(|&(a, b)| (a, b) == (k.min(lead), k.max(lead)))
+                    .unwrap_or(0);
+                let reach = self.contest_reach[3 * i + p];
+                ll[k] = ll[k].max(best - (0.5 * reach + 3.0 * reach.sqrt()));
+            }
             let v = &mut self.view;
             let total: f64 = js.iter().map(|&j| v[j]).sum();
             let w: [f64; 3] =
@@ -1307,6 +1448,49 @@ mod tests {
     use crate::estimation::uaic::UaicConfig;
     use crate::gp::GpModel;
     use crate::sensors::{CameraModel, Readings};
+
+    /// The contest's marginal likelihood is the Gaussian density of the residuals with the
+    /// offset and the slope error integrated out, N(0, I + kappa 1 1' + v w w'), evaluated
+    /// directly with nalgebra's Cholesky (up to the constant n/2 ln 2 pi), v = 0 included.
+    #[test]
+    fn the_contests_likelihood_is_the_marginal_gaussian_density() {
+        let mut state = 0x2545_f491_4f6c_dd1d_u64;
+        let mut uniform = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        for (count, kappa, v) in [
+            (1, 0.44, 0.3),
+            (4, 0.44, 0.0),
+            (7, 2.0, 5.0),
+            (12, 0.1, 1e-3),
+        ] {
+            let r: Vec<f64> = (0..count).map(|_| 2.0 * uniform()).collect();
+            let w: Vec<f64> = (0..count).map(|_| 3.0 * uniform()).collect();
+            let mut sums = [0.0; 5];
+            for t in 0..count {
+                sums[0] += r[t];
+                sums[1] += r[t] * r[t];
+                sums[2] += w[t];
+                sums[3] += w[t] * w[t];
+                sums[4] += w[t] * r[t];
+            }
+            let got = contest_log_likelihood(&sums, count as f64, kappa, v);
+            let sigma = DMatrix::from_fn(count, count, |a, b| {
+                (if a == b { 1.0 } else { 0.0 }) + kappa + v * w[a] * w[b]
+            });
+            let chol = nalgebra::linalg::Cholesky::new(sigma).unwrap();
+            let rv = nalgebra::DVector::from_vec(r.clone());
+            let log_det: f64 = chol.l().diagonal().iter().map(|d| 2.0 * d.ln()).sum();
+            let want = -0.5 * rv.dot(&chol.solve(&rv)) - 0.5 * log_det;
+            assert!(
+                (got - want).abs() <= 1e-10 * want.abs().max(1.0),
+                "n {count} kappa {kappa} v {v}: {got} against {want}"
+            );
+        }
+    }
 
     /// The toy arm's nominal precisions: enc1, enc2, tach1, tach2, cam_u, cam_v.
     const TOY_NOMINAL: [f64; 6] = [1e6, 1e6, 1e6, 1e6, 1e4, 1e4];

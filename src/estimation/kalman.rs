@@ -184,6 +184,27 @@ pub fn transition_model(
     }
 }
 
+/// A camera prediction that one joint alone moves: g + J_i (q_i - position), another filter's
+/// linearisation with joint i taken from the filter scored against it (the hybrid's pair
+/// evidence: docs/method.md, "Pair evidence").
+#[derive(Clone, Copy, Debug)]
+pub struct CameraReference<'a> {
+    pub joint: usize,
+    /// The camera's outputs at the linearisation point.
+    pub g: &'a [f64],
+    /// The Jacobian's column of the joint, per output.
+    pub column: &'a [f64],
+    /// The joint's position at the linearisation point.
+    pub position: f64,
+}
+
+impl CameraReference<'_> {
+    /// Output r's prediction with the joint where `x` has it.
+    pub fn predict(&self, r: usize, x: &DVector<f64>) -> f64 {
+        self.g[r] + self.column[r] * (x[self.joint] - self.position)
+    }
+}
+
 /// The extended Kalman filter on [q, qd]: the one filter step (predict with a transition, update
 /// channel by channel with an observation model) every Kalman-type estimator here runs.
 #[derive(Clone)]
@@ -245,6 +266,17 @@ impl Ekf {
         self.p_pred = DMatrix::zeros(d, d);
         self.ph = DVector::zeros(d);
         self
+    }
+
+    /// The camera's outputs and Jacobian (outputs x joints, row-major) at the last
+    /// linearisation, and the state it was taken at.
+    pub fn camera_linearisation(&self) -> (&[f64], &[f64], &[f64]) {
+        (&self.g, &self.jac, self.x_pred.as_slice())
+    }
+
+    /// The observation model.
+    pub fn observation(&self) -> &Arc<dyn ObservationModel> {
+        &self.observation
     }
 
     /// The joint state [q, qd] (without the model-error state).
@@ -534,26 +566,34 @@ impl Ekf {
 
     /// [`Self::update`] that also writes, for each channel `scored` picks, its normalised
     /// sequential innovation nu / sqrt(s) (as the log-likelihood takes it; NaN when the channel
-    /// has no reading) into `z`: what the hybrid's pair evidence compares between hypotheses
+    /// has no reading) into `z` and sqrt(s) into `spread`; with a `reference`, the camera's
+    /// innovations are taken against its prediction instead of the filter's own: what the hybrid's pair evidence compares between hypotheses
     /// (docs/method.md, "Pair evidence").
     pub fn update_scored(
         &mut self,
         readings: &Readings,
         variances: &[f64],
         scored: impl Fn(usize) -> bool,
+        reference: Option<&CameraReference<'_>>,
         z: &mut [f64],
+        spread: &mut [f64],
     ) -> f64 {
         let mut ll = 0.0;
         for c in 0..self.layout.len() {
             z[c] = f64::NAN;
+            spread[c] = f64::NAN;
             if let Some(y) = readings.get(c)
                 && variances[c].is_finite()
             {
                 if scored(c) {
-                    let nu = y - self.predicted(c);
+                    let nu = y - match (reference, self.layout.channel(c)) {
+                        (Some(reference), Channel::Camera(r)) => reference.predict(r, &self.x),
+                        _ => self.predicted(c),
+                    };
                     let s = self.projected_variance(c) + variances[c];
                     if s.is_finite() && s > 0.0 {
                         z[c] = nu / s.sqrt();
+                        spread[c] = s.sqrt();
                     }
                 }
                 ll += self.update_channel(c, y, variances[c]);

@@ -577,6 +577,13 @@ pub trait ObservationModel: Send + Sync {
 
     /// The camera's outputs g(q) and their Jacobian dg/dq (row-major, outputs x joints) at q.
     fn camera(&self, q: &[f64], g: &mut [f64], jac: &mut [f64]);
+
+    /// The variance of the camera model's own error in dg_r/dq_joint at q (every output the
+    /// same): how far its slope may be off. 0 for a model taken as exact.
+    fn slope_variance(&self, q: &[f64], joint: usize) -> f64 {
+        let _ = (q, joint);
+        0.0
+    }
 }
 
 /// The channel layout with the GP camera model (docs/method.md, "The camera model").
@@ -584,6 +591,8 @@ pub trait ObservationModel: Send + Sync {
 pub struct GpCamera {
     layout: ChannelLayout,
     gp: Arc<GpModel>,
+    /// The GP's kernel factor, built the first time a slope variance is asked for.
+    factor: Arc<std::sync::OnceLock<Option<nalgebra::DMatrix<f64>>>>,
 }
 
 impl GpCamera {
@@ -601,7 +610,11 @@ impl GpCamera {
             layout.camera_outputs(),
             "the GP gives one output per camera output"
         );
-        Self { layout, gp }
+        Self {
+            layout,
+            gp,
+            factor: Arc::default(),
+        }
     }
 
     /// The layout and GP as an observation model to share.
@@ -617,6 +630,13 @@ impl ObservationModel for GpCamera {
 
     fn camera(&self, q: &[f64], g: &mut [f64], jac: &mut [f64]) {
         self.gp.predict(q, g, jac);
+    }
+
+    fn slope_variance(&self, q: &[f64], joint: usize) -> f64 {
+        let factor = self.factor.get_or_init(|| self.gp.kernel_factor());
+        let mut scratch = Vec::with_capacity(self.gp.n_points());
+        self.gp
+            .slope_variance(factor.as_ref(), q, joint, &mut scratch)
     }
 }
 

@@ -217,6 +217,71 @@ impl GpModel {
         }
     }
 
+    /// The Cholesky factor L of K = K_f + sn^2 I over the training inputs (as the fit built
+    /// it), for posterior variances; `None` if K is not positive definite.
+    pub fn kernel_factor(&self) -> Option<nalgebra::DMatrix<f64>> {
+        let n = self.n_inputs;
+        let points = self.n_points();
+        let sn2 = self.hyperparameters.noise_std * self.hyperparameters.noise_std;
+        let mut k = nalgebra::DMatrix::zeros(points, points);
+        for a in 0..points {
+            for b in 0..=a {
+                let (xa, xb) = (
+                    &self.inputs[a * n..(a + 1) * n],
+                    &self.inputs[b * n..(b + 1) * n],
+                );
+                let s: f64 = (0..n)
+                    .map(|d| (xa[d] - xb[d]) * (xa[d] - xb[d]) * self.inv_l2[d])
+                    .sum();
+                let v = self.sf2 * (-0.5 * s).exp();
+                k[(a, b)] = v;
+                k[(b, a)] = v;
+            }
+            k[(a, a)] += sn2;
+        }
+        nalgebra::linalg::Cholesky::new(k).map(|c| c.unpack())
+    }
+
+    /// The posterior variance of the latent camera function's slope d g_r / d q_d at `q` (the
+    /// same for every output: they share the kernel), sf^2 / l_d^2 - k_d' K^-1 k_d with
+    /// k_d = dk(q, Q_j) / dq_d (Rasmussen & Williams sec. 9.4; docs/method.md, "Pair
+    /// evidence"): how far the model's slope may be off where it has data. `factor` is
+    /// [`Self::kernel_factor`]; without one, the prior's sf^2 / l_d^2 (the data taken to say
+    /// nothing). `scratch` holds one entry per training point.
+    pub fn slope_variance(
+        &self,
+        factor: Option<&nalgebra::DMatrix<f64>>,
+        q: &[f64],
+        d: usize,
+        scratch: &mut Vec<f64>,
+    ) -> f64 {
+        let prior = self.sf2 * self.inv_l2[d];
+        let Some(l) = factor else {
+            return prior;
+        };
+        let n = self.n_inputs;
+        let points = self.n_points();
+        scratch.clear();
+        for x in self.inputs.chunks_exact(n) {
+            let s: f64 = (0..n)
+                .map(|e| (q[e] - x[e]) * (q[e] - x[e]) * self.inv_l2[e])
+                .sum();
+            scratch.push(-(q[d] - x[d]) * self.inv_l2[d] * self.sf2 * (-0.5 * s).exp());
+        }
+        // Forward substitution L y = k_d; the explained variance is |y|^2.
+        let mut explained = 0.0;
+        for a in 0..points {
+            let mut v = scratch[a];
+            for b in 0..a {
+                v -= l[(a, b)] * scratch[b];
+            }
+            v /= l[(a, a)];
+            scratch[a] = v;
+            explained += v * v;
+        }
+        (prior - explained).max(0.0)
+    }
+
     /// The model as JSON (numbers round-trip exactly).
     pub fn to_json(&self) -> String {
         serde_json::to_string_pretty(self).expect("a GP model always serialises")
@@ -300,6 +365,63 @@ impl GpModel {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The posterior variance of the slope is the limit of the posterior variance of central
+    /// differences, (V(a, a) + V(b, b) - 2 V(a, b)) / (2h)^2 with V(a, b) = k(a, b) - k_a' K^-1
+    /// k_b solved by nalgebra (an independent reference); far from the data it is the prior's
+    /// sf^2 / l_d^2, and without a factor the prior too.
+    #[test]
+    fn slope_variance_matches_the_posterior_of_central_differences() {
+        let m = GpModel::toy();
+        let factor = m
+            .kernel_factor()
+            .expect("the toy kernel is positive definite");
+        let n = m.n_inputs;
+        let kern = |a: &[f64], b: &[f64]| {
+            let s: f64 = (0..n).map(|d| (a[d] - b[d]).powi(2) * m.inv_l2[d]).sum();
+            m.sf2 * (-0.5 * s).exp()
+        };
+        let points: Vec<&[f64]> = m.inputs.chunks_exact(n).collect();
+        let sn2 = m.hyperparameters.noise_std.powi(2);
+        let k = nalgebra::DMatrix::from_fn(points.len(), points.len(), |a, b| {
+            kern(points[a], points[b]) + if a == b { sn2 } else { 0.0 }
+        });
+        let chol = nalgebra::linalg::Cholesky::new(k).unwrap();
+        let posterior = |a: &[f64], b: &[f64]| {
+            let ka =
+                nalgebra::DVector::from_iterator(points.len(), points.iter().map(|x| kern(a, x)));
+            let kb =
+                nalgebra::DVector::from_iterator(points.len(), points.iter().map(|x| kern(b, x)));
+            kern(a, b) - ka.dot(&chol.solve(&kb))
+        };
+        let mut scratch = Vec::new();
+        for q in [[0.31, -0.47], [0.0, 0.1], [0.9, 0.6]] {
+            for d in 0..n {
+                let h = 1e-3;
+                let (mut a, mut b) = (q, q);
+                a[d] += h;
+                b[d] -= h;
+                let fd = (posterior(&a, &a) + posterior(&b, &b) - 2.0 * posterior(&a, &b))
+                    / (4.0 * h * h);
+                let v = m.slope_variance(Some(&factor), &q, d, &mut scratch);
+                assert!(
+                    (v - fd).abs() <= 1e-4 * fd.abs().max(1e-3),
+                    "q {q:?} d {d}: {v} against {fd}"
+                );
+                assert!(
+                    v < m.sf2 * m.inv_l2[d],
+                    "the data must tell something near them"
+                );
+            }
+        }
+        let far = [40.0, -40.0];
+        for d in 0..n {
+            let prior = m.sf2 * m.inv_l2[d];
+            let v = m.slope_variance(Some(&factor), &far, d, &mut scratch);
+            assert!((v - prior).abs() <= 1e-12 * prior, "{v} against {prior}");
+            assert_eq!(m.slope_variance(None, &[0.3, 0.2], d, &mut scratch), prior);
+        }
+    }
 
     #[test]
     fn jacobian_matches_central_differences() {
