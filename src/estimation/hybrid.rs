@@ -454,7 +454,6 @@ pub struct Hybrid {
     reference_g: Vec<f64>,
     reference_jac: Vec<f64>,
     reference_q: Vec<f64>,
-    reference_column: Vec<f64>,
     /// The bank's probabilities with the contests' camera evidence (`pair_evidence`; otherwise
     /// a copy): what the winner, the precisions and the re-anchoring are decided with.
     view: Vec<f64>,
@@ -553,7 +552,6 @@ impl Hybrid {
             reference_g: vec![0.0; layout.camera_outputs()],
             reference_jac: vec![0.0; layout.camera_outputs() * n],
             reference_q: vec![0.0; n],
-            reference_column: vec![0.0; layout.camera_outputs()],
             view: probability_view,
         }
     }
@@ -665,7 +663,6 @@ impl Hybrid {
             }
             let r = self.layout.camera_outputs();
             for o in 0..r {
-                self.reference_column[o] = self.reference_jac[o * n + i];
                 self.pair_column[i * r + o] = self.reference_jac[o * n + i];
             }
             let period = self.config.resync_ticks.max(1);
@@ -676,14 +673,14 @@ impl Hybrid {
             }
             self.slope_age[i] += 1;
             // Taken out while the sides' filters are updated (no allocation).
-            let (g, column) = (
+            let (g, columns) = (
                 std::mem::take(&mut self.reference_g),
-                std::mem::take(&mut self.reference_column),
+                std::mem::take(&mut self.pair_column),
             );
             let reference = CameraReference {
                 joint: i,
                 g: &g,
-                column: &column,
+                column: &columns[i * r..(i + 1) * r],
                 position: self.reference_q[i],
             };
             for (side, j) in js.into_iter().enumerate() {
@@ -702,7 +699,7 @@ impl Hybrid {
                 );
             }
             self.reference_g = g;
-            self.reference_column = column;
+            self.pair_column = columns;
         }
     }
 
