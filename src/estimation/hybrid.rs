@@ -428,6 +428,8 @@ pub struct Hybrid {
     /// Per joint: the posterior variance of the camera model's slope along the joint where the
     /// open contest is, and the ticks since it was taken.
     slope_variance: Vec<f64>,
+    /// Working space of the camera model's slope variance (reserved once).
+    slope_scratch: Vec<f64>,
     slope_age: Vec<u64>,
     /// Per joint: the "neither" side's position of the joint when the contest opened (where
     /// the slope error's contribution is taken as zero; the offset absorbs the rest).
@@ -499,10 +501,14 @@ impl Hybrid {
         }
         let restarted = vec![ekf.clone(); h];
         let probability_view = probability.clone();
-        let contest_filters = if config.pair_evidence {
-            vec![ekf.clone(); 3 * n]
+        let (contest_filters, slope_scratch) = if config.pair_evidence {
+            ekf.observation().prepare_slope_variance();
+            (
+                vec![ekf.clone(); 3 * n],
+                Vec::with_capacity(ekf.observation().slope_scratch_len()),
+            )
         } else {
-            Vec::new()
+            (Vec::new(), Vec::new())
         };
         Self {
             uaic,
@@ -540,6 +546,7 @@ impl Hybrid {
             pair_slots: vec![None; n],
             contest_sums: vec![0.0; n * layout.camera_outputs() * CONTEST_SUMS],
             slope_variance: vec![0.0; n],
+            slope_scratch,
             slope_age: vec![0; n],
             slope_anchor: vec![0.0; n],
             contest_reach: vec![0.0; 3 * n],
@@ -666,9 +673,11 @@ impl Hybrid {
             }
             let period = self.config.resync_ticks.max(1);
             if self.slope_age[i].is_multiple_of(period) {
-                self.slope_variance[i] = self.bank.filters[w]
-                    .observation()
-                    .slope_variance(&self.reference_q, i);
+                self.slope_variance[i] = self.bank.filters[w].observation().slope_variance(
+                    &self.reference_q,
+                    i,
+                    &mut self.slope_scratch,
+                );
             }
             self.slope_age[i] += 1;
             // Taken out while the sides' filters are updated (no allocation).

@@ -579,11 +579,22 @@ pub trait ObservationModel: Send + Sync {
     fn camera(&self, q: &[f64], g: &mut [f64], jac: &mut [f64]);
 
     /// The variance of the camera model's own error in dg_r/dq_joint at q (every output the
-    /// same): how far its slope may be off. 0 for a model taken as exact.
-    fn slope_variance(&self, q: &[f64], joint: usize) -> f64 {
-        let _ = (q, joint);
+    /// same): how far its slope may be off. 0 for a model taken as exact. `scratch` is working
+    /// space the caller keeps (reserve [`Self::slope_scratch_len`] entries once: no allocation
+    /// per call).
+    fn slope_variance(&self, q: &[f64], joint: usize, scratch: &mut Vec<f64>) -> f64 {
+        let _ = (q, joint, scratch);
         0.0
     }
+
+    /// The entries [`Self::slope_variance`]'s scratch holds (0 for a model taken as exact).
+    fn slope_scratch_len(&self) -> usize {
+        0
+    }
+
+    /// Builds what [`Self::slope_variance`] needs once (called when a filter that will ask is
+    /// made, so that no tick allocates it).
+    fn prepare_slope_variance(&self) {}
 }
 
 /// The channel layout with the GP camera model (docs/method.md, "The camera model").
@@ -591,8 +602,6 @@ pub trait ObservationModel: Send + Sync {
 pub struct GpCamera {
     layout: ChannelLayout,
     gp: Arc<GpModel>,
-    /// The GP's kernel factor, built the first time a slope variance is asked for.
-    factor: Arc<std::sync::OnceLock<Option<nalgebra::DMatrix<f64>>>>,
 }
 
 impl GpCamera {
@@ -610,11 +619,7 @@ impl GpCamera {
             layout.camera_outputs(),
             "the GP gives one output per camera output"
         );
-        Self {
-            layout,
-            gp,
-            factor: Arc::default(),
-        }
+        Self { layout, gp }
     }
 
     /// The layout and GP as an observation model to share.
@@ -632,11 +637,17 @@ impl ObservationModel for GpCamera {
         self.gp.predict(q, g, jac);
     }
 
-    fn slope_variance(&self, q: &[f64], joint: usize) -> f64 {
-        let factor = self.factor.get_or_init(|| self.gp.kernel_factor());
-        let mut scratch = Vec::with_capacity(self.gp.n_points());
+    fn slope_variance(&self, q: &[f64], joint: usize, scratch: &mut Vec<f64>) -> f64 {
         self.gp
-            .slope_variance(factor.as_ref(), q, joint, &mut scratch)
+            .slope_variance(self.gp.slope_factor(), q, joint, scratch)
+    }
+
+    fn slope_scratch_len(&self) -> usize {
+        self.gp.n_points()
+    }
+
+    fn prepare_slope_variance(&self) {
+        self.gp.slope_factor();
     }
 }
 

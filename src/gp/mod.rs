@@ -83,6 +83,20 @@ pub struct GpModel {
     /// sf^2, derived.
     #[serde(skip)]
     sf2: f64,
+    /// The kernel factor for slope variances, built once on first use ([`Self::slope_factor`]).
+    #[serde(skip)]
+    factor: FactorCache,
+}
+
+/// [`GpModel::slope_factor`]'s cache: derived from the model, so it takes no part in equality,
+/// and a clone starts with the factor already built if it was.
+#[derive(Clone, Debug, Default)]
+struct FactorCache(std::sync::OnceLock<Option<nalgebra::DMatrix<f64>>>);
+
+impl PartialEq for FactorCache {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
 }
 
 impl GpModel {
@@ -111,6 +125,7 @@ impl GpModel {
             log_marginal_likelihood,
             inv_l2: Vec::new(),
             sf2: 0.0,
+            factor: FactorCache::default(),
         };
         m.derive();
         m
@@ -240,6 +255,12 @@ impl GpModel {
             k[(a, a)] += sn2;
         }
         nalgebra::linalg::Cholesky::new(k).map(|c| c.unpack())
+    }
+
+    /// [`Self::kernel_factor`], built the first time it is asked for and kept (the model is
+    /// shared by the runs of a setup: built once for all of them).
+    pub fn slope_factor(&self) -> Option<&nalgebra::DMatrix<f64>> {
+        self.factor.0.get_or_init(|| self.kernel_factor()).as_ref()
     }
 
     /// The posterior variance of the latent camera function's slope d g_r / d q_d at `q` (the
