@@ -24,11 +24,22 @@
 //!   inertia joint i's torque moves when the other joints are free: on a joint coaxial with
 //!   another, far below M_ii), kp_i <= max((0.3 / dt)^2 m_eff_i, 0.3 D_i / dt) (the second where
 //!   the joint's damping D_i makes its loop first order) and kd_i <= 0.5 m_eff_i / dt; then
-//!   the coupled modes: while dt lambda_max(M^-1 Kd) > 0.5, the kd of the joints in the fastest
-//!   mode are lowered by their share of its eigenvector. An explicit velocity loop flips sign
-//!   every tick above kd dt / m = 1: a 7-DOF arm's coaxial roll joints chattered at 500 Hz under
-//!   the gains the rules above give alone. (A first version scaled every gain together, kp too:
-//!   on generated arms it left heavy joints 1.5 rad off under gravity.)
+//!   the coupled modes: dt lambda_max(M^-1 Kd) <= 0.5 at every pose. An explicit velocity loop
+//!   flips sign every tick above kd dt / m = 1: a 7-DOF arm's coaxial roll joints chattered at
+//!   500 Hz under the gains the rules above give alone. Where the per-joint kd exceed it (two
+//!   nearly coaxial joints: their relative motion moves almost no inertia, their common motion
+//!   much), no per-joint kd can damp the slow mode and keep the fast one within the tick:
+//!   since 2026-12-07 the derivative gain then goes per mode (`kd_matrix`): with M = L L^T at
+//!   the start and L^-1 Kp L^-T = V diag(w_k^2) V^T, Kd = L V diag(c_k) V^T L^T - D,
+//!   c_k = min(2 zeta w_k, 0.5 / dt), projected on the positive semidefinite matrices and
+//!   scaled down where another pose's fastest mode exceeds the limit; then each joint's
+//!   diagonal gets back what its per-joint kd exceeds that, as far as the limit allows (the
+//!   per-joint rule's margin: without it a generated arm's healthy `ekf-gate` run ran away).
+//!   (Until then the kd of the
+//!   joints in the fastest mode were lowered by their share of its eigenvector: generated arms
+//!   57080 and 640003 were refused, 0.22 and 0.26 rad off, 57080's slow mode swinging (4 s) on
+//!   kd 0.07 N m s/rad. A first version scaled every gain together, kp too: on generated arms it
+//!   left heavy joints 1.5 rad off under gravity.)
 //! - Coulomb friction F_i (since 2026-12-04): kp_i >= F_i / 0.01 rad, above the effort cap (the
 //!   proportional torque alone breaks the friction from 0.01 rad on), and the integral limit
 //!   covers it. (Gains that ignored it left generated arms and a Panda with 4 N m of friction on
@@ -269,6 +280,7 @@ pub fn init_scenario_noted(
         axis_rank: view.axis_rank,
         m_max: &gains.m_max,
         g_max: &gains.g_max,
+        per_mode: gains.kd_matrix.is_some(),
         camera_blind: model
             .joints
             .iter()
@@ -434,6 +446,9 @@ fn start_and_targets(model: &ArmModel) -> Poses {
 struct Gains {
     kp: Vec<f64>,
     kd: Vec<f64>,
+    /// Where the per-joint kd could not damp the slow coupled modes without exceeding the
+    /// per-tick limit in a fast one: the derivative gain per mode (its diagonal is `kd`).
+    kd_matrix: Option<nalgebra::DMatrix<f64>>,
     ki: Vec<f64>,
     ilim: Vec<f64>,
     m_max: Vec<f64>,
@@ -454,8 +469,10 @@ fn gains_from_dynamics(model: &Arc<ArmModel>, poses: &Poses) -> Gains {
     // other joints are free (on coaxial or nearly coaxial joints far below M_ii).
     let mut m_eff = vec![f64::INFINITY; n];
     let mut inverses = Vec::new();
+    let mut m_start = None;
     for q in [&poses.q0, &poses.t1, &poses.t2] {
         let (m, g) = dynamics.mass_matrix_and_gravity(q);
+        m_start.get_or_insert_with(|| m.clone());
         for i in 0..n {
             m_diag[i] = m_diag[i].max(m[(i, i)]);
             m_max[i] = m_max[i].max((0..n).map(|j| m[(i, j)].abs()).sum::<f64>());
@@ -511,44 +528,41 @@ fn gains_from_dynamics(model: &Arc<ArmModel>, poses: &Poses) -> Gains {
         let limit = (1.5 * (g_max[i] + j.friction)).max(1.0);
         ilim[i] = j.effort.map_or(limit, |e| limit.min(e));
     }
-    // The coupled modes: lambda_max(M^-1 Kd) = lambda_max(Kd^1/2 M^-1 Kd^1/2) at every pose.
-    // Where the fastest exceeds its per-tick limit, the joints in it give up damping in
-    // proportion to their share of its eigenvector, until it fits (each pass at least halves
-    // the excess on the mode's joints; bounded passes, then a uniform scaling as a backstop).
-    let fastest_mode = |k: &[f64]| -> (f64, Vec<f64>) {
-        let mut best = (0.0, vec![0.0; n]);
-        for inv in &inverses {
-            let s = nalgebra::DMatrix::from_fn(n, n, |a, b| (k[a] * k[b]).sqrt() * inv[(a, b)]);
-            let eig = s.symmetric_eigen();
-            let (idx, &value) = eig
-                .eigenvalues
-                .iter()
-                .enumerate()
-                .max_by(|a, b| a.1.total_cmp(b.1))
-                .expect("n >= 1");
-            if value > best.0 {
-                best = (
-                    value,
-                    eig.eigenvectors.column(idx).iter().map(|v| v * v).collect(),
-                );
+    // The coupled modes: lambda_max(M^-1 Kd) at every pose. A diagonal Kd that fits the fastest
+    // mode's per-tick limit leaves the gains per joint. One that does not (two joints nearly
+    // coaxial: their relative motion moves almost no inertia, their common motion much) cannot
+    // both damp the slow mode and keep the fast one within the limit: the derivative gain then
+    // goes per mode of the start's M^-1 Kp, each at zeta (capped at the per-tick limit).
+    let mut kd_matrix = None;
+    let diagonal = nalgebra::DMatrix::from_diagonal(&nalgebra::DVector::from_column_slice(&kd));
+    if fastest_mode(&inverses, &diagonal) * DT > DAMPING_PER_TICK
+        && let Some(modal) = m_start
+            .as_ref()
+            .and_then(|m| modal_damping(m, &kp, model, &inverses))
+    {
+        let modal = with_joint_damping(modal, &kd, &inverses);
+        kd = (0..n).map(|i| modal[(i, i)]).collect();
+        kd_matrix = Some(modal);
+    }
+    if kd_matrix.is_none() {
+        // Bounded passes: the joints in the fastest mode give up damping in proportion to
+        // their share of its eigenvector (each pass at least halves the excess on the mode's
+        // joints), then a uniform scaling as a backstop.
+        for _ in 0..50 {
+            let (value, shares) = fastest_diagonal_mode(&inverses, &kd);
+            if value * DT <= DAMPING_PER_TICK {
+                break;
+            }
+            let f = DAMPING_PER_TICK / (value * DT);
+            for (k, share) in kd.iter_mut().zip(&shares) {
+                *k *= f.powf(share.min(1.0));
             }
         }
-        best
-    };
-    for _ in 0..50 {
-        let (value, shares) = fastest_mode(&kd);
-        if value * DT <= DAMPING_PER_TICK {
-            break;
+        let (value, _) = fastest_diagonal_mode(&inverses, &kd);
+        if value * DT > DAMPING_PER_TICK {
+            let f = DAMPING_PER_TICK / (value * DT);
+            kd.iter_mut().for_each(|k| *k *= f);
         }
-        let f = DAMPING_PER_TICK / (value * DT);
-        for (k, share) in kd.iter_mut().zip(&shares) {
-            *k *= f.powf(share.min(1.0));
-        }
-    }
-    let (value, _) = fastest_mode(&kd);
-    if value * DT > DAMPING_PER_TICK {
-        let f = DAMPING_PER_TICK / (value * DT);
-        kd.iter_mut().for_each(|k| *k *= f);
     }
     // Where the effort limit made the integral slower than INTEGRAL_TIME_MAX, it is raised
     // towards kp / INTEGRAL_TIME_MAX as far as its Routh-Hurwitz margin on the joint's largest
@@ -561,11 +575,169 @@ fn gains_from_dynamics(model: &Arc<ArmModel>, poses: &Poses) -> Gains {
     Gains {
         kp,
         kd,
+        kd_matrix,
         ki,
         ilim,
         m_max,
         g_max,
     }
+}
+
+/// The fastest coupled mode of a derivative gain: the largest lambda(M^-1 Kd) over the poses'
+/// inverse mass matrices (with Kd symmetric positive semidefinite, the eigenvalues of
+/// R^T Kd R, M^-1 = R R^T, symmetric).
+fn fastest_mode(inverses: &[nalgebra::DMatrix<f64>], kd: &nalgebra::DMatrix<f64>) -> f64 {
+    inverses
+        .iter()
+        .filter_map(|inv| inv.clone().cholesky())
+        .map(|c| {
+            let r = c.l();
+            let s = r.transpose() * kd * &r;
+            let s = (&s + s.transpose()) * 0.5;
+            s.symmetric_eigen().eigenvalues.max()
+        })
+        .fold(0.0, f64::max)
+}
+
+/// [`fastest_mode`] of a diagonal gain, with each joint's share of the mode (its eigenvector of
+/// Kd^1/2 M^-1 Kd^1/2, squared).
+fn fastest_diagonal_mode(inverses: &[nalgebra::DMatrix<f64>], k: &[f64]) -> (f64, Vec<f64>) {
+    let n = k.len();
+    let mut best = (0.0, vec![0.0; n]);
+    for inv in inverses {
+        let s = nalgebra::DMatrix::from_fn(n, n, |a, b| (k[a] * k[b]).sqrt() * inv[(a, b)]);
+        let eig = s.symmetric_eigen();
+        let (idx, &value) = eig
+            .eigenvalues
+            .iter()
+            .enumerate()
+            .max_by(|a, b| a.1.total_cmp(b.1))
+            .expect("n >= 1");
+        if value > best.0 {
+            best = (
+                value,
+                eig.eigenvectors.column(idx).iter().map(|v| v * v).collect(),
+            );
+        }
+    }
+    best
+}
+
+/// The per-mode gain with the per-joint rule's damping added back on its diagonal as far as
+/// the per-tick limit allows: the per-joint kd_i (from the row sum m_i, more than a mode of M
+/// alone asks for: the margin the per-joint gains have always had against the belief's lag)
+/// less what the per-mode gain already gives, lowered on the joints of the fastest mode by
+/// their share of its added damping until dt lambda_max(M^-1 Kd) fits (bounded passes, then a
+/// uniform scaling by bisection as a backstop; the per-mode gain alone fits).
+fn with_joint_damping(
+    modal: nalgebra::DMatrix<f64>,
+    per_joint: &[f64],
+    inverses: &[nalgebra::DMatrix<f64>],
+) -> nalgebra::DMatrix<f64> {
+    let n = per_joint.len();
+    let mut added: Vec<f64> = (0..n)
+        .map(|i| (per_joint[i] - modal[(i, i)]).max(0.0))
+        .collect();
+    let with = |added: &[f64]| {
+        let mut k = modal.clone();
+        for (i, a) in added.iter().enumerate() {
+            k[(i, i)] += a;
+        }
+        k
+    };
+    for _ in 0..50 {
+        let (value, mode) = fastest_mode_vector(inverses, &with(&added));
+        if value * DT <= DAMPING_PER_TICK {
+            return with(&added);
+        }
+        let weights: Vec<f64> = (0..n).map(|i| added[i] * mode[i] * mode[i]).collect();
+        let total: f64 = weights.iter().sum();
+        if total <= 0.0 {
+            break;
+        }
+        let f = DAMPING_PER_TICK / (value * DT);
+        for (a, w) in added.iter_mut().zip(&weights) {
+            *a *= f.powf((w / total).min(1.0));
+        }
+    }
+    let (mut lo, mut hi) = (0.0, 1.0);
+    for _ in 0..30 {
+        let mid = 0.5 * (lo + hi);
+        let scaled: Vec<f64> = added.iter().map(|a| a * mid).collect();
+        if fastest_mode(inverses, &with(&scaled)) * DT <= DAMPING_PER_TICK {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    let scaled: Vec<f64> = added.iter().map(|a| a * lo).collect();
+    with(&scaled)
+}
+
+/// [`fastest_mode`] with its mode shape in joint space: x = R u for the top eigenvector u of
+/// R^T Kd R (M^-1 Kd x = lambda x).
+fn fastest_mode_vector(
+    inverses: &[nalgebra::DMatrix<f64>],
+    kd: &nalgebra::DMatrix<f64>,
+) -> (f64, Vec<f64>) {
+    let n = kd.nrows();
+    let mut best = (0.0, vec![0.0; n]);
+    for c in inverses.iter().filter_map(|inv| inv.clone().cholesky()) {
+        let r = c.l();
+        let s = r.transpose() * kd * &r;
+        let eig = ((&s + s.transpose()) * 0.5).symmetric_eigen();
+        let (idx, &value) = eig
+            .eigenvalues
+            .iter()
+            .enumerate()
+            .max_by(|a, b| a.1.total_cmp(b.1))
+            .expect("n >= 1");
+        if value > best.0 {
+            let x = &r * eig.eigenvectors.column(idx);
+            best = (value, x.iter().copied().collect());
+        }
+    }
+    best
+}
+
+/// Modal damping (docs/method.md, "Gains of init"): with M = L L^T the start's mass matrix and
+/// L^-1 Kp L^-T = V diag(w_k^2) V^T, the total damping L V diag(c_k) V^T L^T gives mode k of
+/// M q'' + (Kd + D) q' + Kp q = 0 the rate c_k = min(2 zeta w_k, limit / dt) exactly at the
+/// start; the joints' own damping D is taken off and what is left projected on the positive
+/// semidefinite matrices. Scaled down as a whole where another pose's fastest mode exceeds the
+/// per-tick limit. None where M is not positive definite.
+fn modal_damping(
+    m: &nalgebra::DMatrix<f64>,
+    kp: &[f64],
+    model: &ArmModel,
+    inverses: &[nalgebra::DMatrix<f64>],
+) -> Option<nalgebra::DMatrix<f64>> {
+    let n = kp.len();
+    let l = m.clone().cholesky()?.l();
+    let l_inv = l.clone().try_inverse()?;
+    let stiffness = nalgebra::DMatrix::from_diagonal(&nalgebra::DVector::from_column_slice(kp));
+    let a = &l_inv * stiffness * l_inv.transpose();
+    let eig = ((&a + a.transpose()) * 0.5).symmetric_eigen();
+    let rates = eig
+        .eigenvalues
+        .map(|w2| (2.0 * ZETA * w2.max(0.0).sqrt()).min(DAMPING_PER_TICK / DT));
+    let v = &eig.eigenvectors;
+    let total = &l * v * nalgebra::DMatrix::from_diagonal(&rates) * v.transpose() * l.transpose();
+    let mut kd = (&total + total.transpose()) * 0.5;
+    for (i, j) in model.joints.iter().enumerate() {
+        kd[(i, i)] -= j.damping;
+    }
+    let eig = kd.symmetric_eigen();
+    let clipped = eig.eigenvalues.map(|x| x.max(0.0));
+    let kd = &eig.eigenvectors
+        * nalgebra::DMatrix::from_diagonal(&clipped)
+        * eig.eigenvectors.transpose();
+    let mut kd = (&kd + kd.transpose()) * 0.5;
+    let value = fastest_mode(inverses, &kd);
+    if value * DT > DAMPING_PER_TICK {
+        kd *= DAMPING_PER_TICK / (value * DT);
+    }
+    (0..n).all(|i| kd[(i, i)].is_finite()).then_some(kd)
 }
 
 /// The camera: its settings, its distance from the centroid of the sampled end-effector
@@ -723,12 +895,19 @@ fn scenario_value(
         // "Prior scale"); the tachometers, not the prior, carry a fast joint's velocity.
         belief: UaicConfig::default(),
         controller: ControlConfig {
-            gains: PidGains::diagonal(
-                rounded(&gains.kp),
-                rounded(&gains.kd),
-                rounded(&gains.ki),
-                rounded(&gains.ilim),
-            ),
+            gains: PidGains {
+                kd_matrix: gains.kd_matrix.as_ref().map(|k| {
+                    k.row_iter()
+                        .map(|row| row.iter().map(|x| round4(*x)).collect())
+                        .collect()
+                }),
+                ..PidGains::diagonal(
+                    rounded(&gains.kp),
+                    rounded(&gains.kd),
+                    rounded(&gains.ki),
+                    rounded(&gains.ilim),
+                )
+            },
             ..ControlConfig::default()
         },
         precision: PrecisionConfig::default(),
@@ -765,6 +944,8 @@ struct Notes<'a> {
     axis_rank: usize,
     m_max: &'a [f64],
     g_max: &'a [f64],
+    /// Whether the derivative gain goes per mode (`kd_matrix`).
+    per_mode: bool,
     /// Per joint, the least over the start and targets of what one camera frame tells about it,
     /// in encoder readings.
     camera_sensitivity: Vec<f64>,
@@ -896,9 +1077,19 @@ fn render(scenario: &Scenario, notes: &Notes<'_>) -> String {
              # would exceed the effort limit), zeta = {ZETA}; kp >= F / {FRICTION_BAND} rad for Coulomb friction F;\n\
              # ki raised to kp / {INTEGRAL_TIME_MAX} s where slower (integral time a quarter of a target's hold),\n\
              # within a quarter of the Routh-Hurwitz bound kp (kd + D) / m;\n\
-             # the integral is clamped at 1.5 x (G + F), at least 1 N m, at most the effort limit.\n",
+             # the integral is clamped at 1.5 x (G + F), at least 1 N m, at most the effort limit.\n{}",
             fmt_list(notes.m_max),
-            fmt_list(notes.g_max)
+            fmt_list(notes.g_max),
+            if notes.per_mode {
+                format!(
+                    "# kd_matrix: no per-joint kd could damp this arm's slow coupled modes while keeping its\n\
+                     # fastest within the tick (dt lambda_max(M^-1 Kd) <= {DAMPING_PER_TICK}), so the derivative gain goes\n\
+                     # per mode of the start's M^-1 Kp: each damped at 2 zeta w_k (at most {DAMPING_PER_TICK} / dt), less the\n\
+                     # joints' own damping; kd is its diagonal.\n"
+                )
+            } else {
+                String::new()
+            }
         ),
     );
     let mut text = doc.to_string();
@@ -1045,23 +1236,27 @@ mod tests {
                 let inv = m.clone().cholesky().unwrap().inverse();
                 for i in 0..n {
                     let m_eff = 1.0 / inv[(i, i)];
-                    assert!(g.kd[i] * DT / m_eff <= DAMPING_PER_TICK * (1.0 + 1e-9));
+                    // Per joint where the gain is per joint; a per-mode gain is bounded by its
+                    // modes below.
+                    assert!(
+                        g.kd_matrix.is_some()
+                            || g.kd[i] * DT / m_eff <= DAMPING_PER_TICK * (1.0 + 1e-9)
+                    );
                     let d = model.joints[i].damping;
                     let inertial = (g.kp[i] / m_eff).sqrt() * DT;
                     let viscous = g.kp[i] * DT / d.max(1e-300);
                     assert!(inertial.min(viscous) <= STIFFNESS_PER_TICK * (1.0 + 1e-9));
                 }
                 // The coupled modes, by the eigenvalues of M^-1 K directly (not symmetrised).
-                let largest = |k: &[f64]| {
-                    let gains =
-                        nalgebra::DMatrix::from_diagonal(&nalgebra::DVector::from_column_slice(k));
-                    (&inv * gains)
-                        .complex_eigenvalues()
-                        .iter()
-                        .map(|c| c.re)
-                        .fold(0.0, f64::max)
-                };
-                let damping = largest(&g.kd) * DT;
+                let gains = g.kd_matrix.clone().unwrap_or_else(|| {
+                    nalgebra::DMatrix::from_diagonal(&nalgebra::DVector::from_column_slice(&g.kd))
+                });
+                let damping = (&inv * gains)
+                    .complex_eigenvalues()
+                    .iter()
+                    .map(|c| c.re)
+                    .fold(0.0, f64::max)
+                    * DT;
                 assert!(
                     damping <= DAMPING_PER_TICK * (1.0 + 1e-6),
                     "seed {seed}: {damping}"
@@ -1069,6 +1264,60 @@ mod tests {
             }
             assert!(g.kp.iter().chain(&g.kd).all(|v| v.is_finite() && *v >= 0.0));
         }
+    }
+
+    /// Where the gains go per mode: the gain is symmetric positive semidefinite with `kd` its
+    /// diagonal; and without the joints' own damping, every mode of the start's
+    /// M q'' + Kd q' + Kp q = 0 is damped at 2 zeta w_k (at the per-tick limit where that is
+    /// less) and the modes stay uncoupled: Phi^T Kd Phi = diag(c_k) on the modes Phi computed
+    /// here with M's symmetric square root (the construction uses its Cholesky factor).
+    #[test]
+    fn per_mode_damping_damps_each_mode_of_the_start_at_zeta() {
+        let mut per_mode = 0;
+        for seed in 100..140 {
+            let model = generated_model(seed);
+            let n = model.joints.len();
+            let poses = start_and_targets(&model);
+            let g = gains_from_dynamics(&model, &poses);
+            let Some(kd) = &g.kd_matrix else { continue };
+            per_mode += 1;
+            assert!((kd - kd.transpose()).abs().max() == 0.0, "seed {seed}");
+            let least = kd.clone().symmetric_eigen().eigenvalues.min();
+            assert!(least >= -1e-9 * kd.abs().max(), "seed {seed}: {least}");
+            assert!((0..n).all(|i| kd[(i, i)] == g.kd[i]));
+
+            let mut undamped = (*model).clone();
+            undamped.joints.iter_mut().for_each(|j| j.damping = 0.0);
+            let (m, _) =
+                Dynamics::new(model.clone(), [0.0, 0.0, -9.81]).mass_matrix_and_gravity(&poses.q0);
+            let inv = m.clone().try_inverse().unwrap();
+            let kd = modal_damping(&m, &g.kp, &undamped, std::slice::from_ref(&inv)).unwrap();
+            let e = m.clone().symmetric_eigen();
+            let root_inv = &e.eigenvectors
+                * nalgebra::DMatrix::from_diagonal(&e.eigenvalues.map(|x| 1.0 / x.sqrt()))
+                * e.eigenvectors.transpose();
+            let kp = nalgebra::DMatrix::from_diagonal(&nalgebra::DVector::from_column_slice(&g.kp));
+            let b = &root_inv * kp * &root_inv;
+            let modes = ((&b + b.transpose()) * 0.5).symmetric_eigen();
+            let phi = &root_inv * &modes.eigenvectors;
+            let modal = phi.transpose() * &kd * &phi;
+            for k in 0..n {
+                let wanted =
+                    (2.0 * ZETA * modes.eigenvalues[k].max(0.0).sqrt()).min(DAMPING_PER_TICK / DT);
+                for l in 0..n {
+                    let expected = if k == l { wanted } else { 0.0 };
+                    assert!(
+                        (modal[(k, l)] - expected).abs() <= 1e-6 * (1.0 + wanted),
+                        "seed {seed}: modes {k}, {l}: {} against {expected}",
+                        modal[(k, l)]
+                    );
+                }
+            }
+        }
+        assert!(
+            per_mode > 0,
+            "no generated arm among 100..140 needed per-mode damping"
+        );
     }
 
     /// On generated arms every joint's integral time kp / ki is at most a quarter of a target's
