@@ -587,16 +587,19 @@ fn gains_from_dynamics(model: &Arc<ArmModel>, poses: &Poses) -> Gains {
 /// inverse mass matrices (with Kd symmetric positive semidefinite, the eigenvalues of
 /// R^T Kd R, M^-1 = R R^T, symmetric).
 fn fastest_mode(inverses: &[nalgebra::DMatrix<f64>], kd: &nalgebra::DMatrix<f64>) -> f64 {
-    inverses
+    fastest_mode_vector(inverses, kd).0
+}
+
+/// The largest eigenvalue of a symmetric matrix and its eigenvector.
+fn top_eigen(s: nalgebra::DMatrix<f64>) -> (f64, nalgebra::DVector<f64>) {
+    let eig = s.symmetric_eigen();
+    let (idx, &value) = eig
+        .eigenvalues
         .iter()
-        .filter_map(|inv| inv.clone().cholesky())
-        .map(|c| {
-            let r = c.l();
-            let s = r.transpose() * kd * &r;
-            let s = (&s + s.transpose()) * 0.5;
-            s.symmetric_eigen().eigenvalues.max()
-        })
-        .fold(0.0, f64::max)
+        .enumerate()
+        .max_by(|a, b| a.1.total_cmp(b.1))
+        .expect("n >= 1");
+    (value, eig.eigenvectors.column(idx).into_owned())
 }
 
 /// [`fastest_mode`] of a diagonal gain, with each joint's share of the mode (its eigenvector of
@@ -606,18 +609,9 @@ fn fastest_diagonal_mode(inverses: &[nalgebra::DMatrix<f64>], k: &[f64]) -> (f64
     let mut best = (0.0, vec![0.0; n]);
     for inv in inverses {
         let s = nalgebra::DMatrix::from_fn(n, n, |a, b| (k[a] * k[b]).sqrt() * inv[(a, b)]);
-        let eig = s.symmetric_eigen();
-        let (idx, &value) = eig
-            .eigenvalues
-            .iter()
-            .enumerate()
-            .max_by(|a, b| a.1.total_cmp(b.1))
-            .expect("n >= 1");
+        let (value, mode) = top_eigen(s);
         if value > best.0 {
-            best = (
-                value,
-                eig.eigenvectors.column(idx).iter().map(|v| v * v).collect(),
-            );
+            best = (value, mode.iter().map(|v| v * v).collect());
         }
     }
     best
@@ -680,27 +674,19 @@ fn fastest_mode_vector(
     inverses: &[nalgebra::DMatrix<f64>],
     kd: &nalgebra::DMatrix<f64>,
 ) -> (f64, Vec<f64>) {
-    let n = kd.nrows();
-    let mut best = (0.0, vec![0.0; n]);
+    let mut best = (0.0, vec![0.0; kd.nrows()]);
     for c in inverses.iter().filter_map(|inv| inv.clone().cholesky()) {
         let r = c.l();
         let s = r.transpose() * kd * &r;
-        let eig = ((&s + s.transpose()) * 0.5).symmetric_eigen();
-        let (idx, &value) = eig
-            .eigenvalues
-            .iter()
-            .enumerate()
-            .max_by(|a, b| a.1.total_cmp(b.1))
-            .expect("n >= 1");
+        let (value, u) = top_eigen((&s + s.transpose()) * 0.5);
         if value > best.0 {
-            let x = &r * eig.eigenvectors.column(idx);
-            best = (value, x.iter().copied().collect());
+            best = (value, (&r * u).iter().copied().collect());
         }
     }
     best
 }
 
-/// Modal damping (docs/method.md, "Gains of init"): with M = L L^T the start's mass matrix and
+/// Modal damping (docs/method.md, "Bring your own arm"): with M = L L^T the start's mass matrix and
 /// L^-1 Kp L^-T = V diag(w_k^2) V^T, the total damping L V diag(c_k) V^T L^T gives mode k of
 /// M q'' + (Kd + D) q' + Kp q = 0 the rate c_k = min(2 zeta w_k, limit / dt) exactly at the
 /// start; the joints' own damping D is taken off and what is left projected on the positive
