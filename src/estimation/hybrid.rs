@@ -219,10 +219,12 @@ pub struct HybridConfig {
     /// uncertainty marginalised out, and never more than the camera could resolve between the
     /// sides; the hybrid decides with the bank's probabilities of the three times that
     /// evidence, which for a drift grows with the cube of the time where the bank's per-tick
-    /// odds stay bounded. On by default since 2026-12-07 (measured in docs/method.md: more
-    /// recoveries of encoder drifts the camera sees on both campaigns, a tachometer bias on a
-    /// joint the camera cannot see left to its own sensors); `false` is the bank's per-tick
-    /// decision alone. (Always written, so that a scenario's fingerprint says which.)
+    /// odds stay bounded. Off by default (opt-in; measured in docs/method.md: better on
+    /// encoder drifts the camera sees; its first version, scored on the sides' whole residuals,
+    /// ran a tachometer bias on a joint the camera cannot see away; as the default it kept an
+    /// encoder whose bias had ended dropped for the rest of the run). (Written only when set, so
+    /// that fingerprints of scenarios that do not set it stay as they were.)
+    #[serde(skip_serializing_if = "is_false")]
     pub pair_evidence: bool,
 }
 
@@ -244,7 +246,7 @@ impl Default for HybridConfig {
             actuator_broad: 100.0,
             restart_ruled_out: true,
             model_error_state: true,
-            pair_evidence: true,
+            pair_evidence: false,
         }
     }
 }
