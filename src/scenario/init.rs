@@ -1071,7 +1071,8 @@ fn render(scenario: &Scenario, notes: &Notes<'_>) -> String {
                     "# kd_matrix: no per-joint kd could damp this arm's slow coupled modes while keeping its\n\
                      # fastest within the tick (dt lambda_max(M^-1 Kd) <= {DAMPING_PER_TICK}), so the derivative gain goes\n\
                      # per mode of the start's M^-1 Kp: each damped at 2 zeta w_k (at most {DAMPING_PER_TICK} / dt), less the\n\
-                     # joints' own damping; kd is its diagonal.\n"
+                     # joints' own damping, plus what the per-joint kd above asks for more on the diagonal as far\n\
+                     # as the tick allows; kd is its diagonal.\n"
                 )
             } else {
                 String::new()
