@@ -195,8 +195,9 @@ fn an_effort_limited_joint_settles_before_its_target_switches() {
 /// per-joint rule left such arms refused by init's own check run (docs/method.md, "Bring your
 /// own arm"). With the derivative gain per mode (`kd_matrix`) init accepts them, and the
 /// healthy scenario it wrote ends within 0.01 rad under no-FT and the hybrid, without an alarm.
-/// The arms were found after the per-mode gain was designed, by a scan of 81001..81200 for arms
-/// the per-joint rule left refused (0.69, 0.75 and 0.017 rad off).
+/// The arms were found by a scan of 81001..81200 for arms the per-joint rule left refused (0.69,
+/// 0.75 and 0.017 rad off), made with the modes alone, before the per-joint margin was added
+/// (prompted by arm71006 of the property test below; docs/method.md, "Bring your own arm").
 #[test]
 fn init_damps_coupled_joints_per_mode() {
     let tmp = tempfile::tempdir().unwrap();
