@@ -177,3 +177,55 @@ fn pair_evidence_leaves_a_joint_the_camera_cannot_see_to_its_own_sensors() {
         );
     }
 }
+
+/// The contest decides which of a joint's two sensors failed, not whether one still has: a
+/// fault that ends is seen to end with the option on, as without it. The paper arm's encoder 1
+/// biased by 0.05 rad from 8 to 9 s (the twenty-eighth session's build kept it dropped for
+/// the rest of the run: its camera evidence from the fault's life outweighed the bank), and on
+/// a generated arm an encoder bias and an encoder drift that end after 2 s: each is dropped
+/// while it acts (at some time), taken back within 0.5 s of its end, kept, and the run ends
+/// at the target.
+#[test]
+fn pair_evidence_takes_back_a_sensor_whose_fault_ended() {
+    let check = |label: &str, setup: &aift::scenario::RunSetup, start: f64, end: f64| {
+        let (r, rec) = run_recorded(setup, Method::Hybrid, 5, None);
+        let nominal = common::at(&rec, "precision_enc1", start - 0.1);
+        let during = common::min_between(&rec, "precision_enc1", start, end);
+        let after = common::min_between(&rec, "precision_enc1", end + 0.5, f64::INFINITY);
+        eprintln!(
+            "{label}: enc1 precision {nominal:.3e} before, at least {during:.3e} during, at least \
+             {after:.3e} from 0.5 s after its end; final error {:.1e}",
+            r.max_final_error
+        );
+        assert!(during < 1e-3 * nominal, "{label}: dropped during the fault");
+        assert!(after > 0.5 * nominal, "{label}: back and kept after it");
+        assert!(
+            r.max_final_error < 0.01,
+            "{label}: {:?}",
+            r.final_error_per_joint
+        );
+    };
+    let paper = common::with_faults(
+        "paper_healthy.toml",
+        &["[[faults]]\nchannel = \"enc1\"\nkind = \"bias\"\noffset = 0.05\nstart = 8.0\nend = 9.0"],
+        &["hybrid.pair_evidence=true"],
+    );
+    check("paper arm, enc1 bias 8-9 s", &paper, 8.0, 9.0);
+    let tmp = tempfile::tempdir().unwrap();
+    for (name, fault) in [
+        ("bias", "kind = \"bias\"\noffset = 0.05"),
+        ("drift", "kind = \"drift\"\nrate = 0.02"),
+    ] {
+        let path = arm_with(
+            tmp.path(),
+            &format!("{name}_ending"),
+            &format!("[[faults]]\nchannel = \"enc1\"\n{fault}\nstart = 8.0\nend = 10.0\n"),
+        );
+        check(
+            &format!("arm52006, enc1 {name} 8-10 s"),
+            &setup(&path, true),
+            8.0,
+            10.0,
+        );
+    }
+}

@@ -219,11 +219,14 @@ pub struct HybridConfig {
     /// uncertainty marginalised out, and never more than the camera could resolve between the
     /// sides; the hybrid decides with the bank's probabilities of the three times that
     /// evidence, which for a drift grows with the cube of the time where the bank's per-tick
-    /// odds stay bounded. Off by default (opt-in; measured in docs/method.md: better on
-    /// encoder drifts the camera sees; its first version, scored on the sides' whole residuals,
-    /// ran a tachometer bias on a joint the camera cannot see away; as the default it kept an
-    /// encoder whose bias had ended dropped for the rest of the run). (Written only when set, so
-    /// that fingerprints of scenarios that do not set it stay as they were.)
+    /// odds stay bounded. The contest decides which sensor failed, not whether one still has:
+    /// "neither" includes "failed and recovered now", priced at one switch and at what this
+    /// tick's reading says against a sensor healthy from now on, so a fault that ends is seen
+    /// to end. Off by default (opt-in; measured in docs/method.md: better on encoder drifts
+    /// the camera sees; its first version, scored on the sides' whole residuals, ran a
+    /// tachometer bias on a joint the camera cannot see away; its second, tried as the
+    /// default, kept an encoder whose bias had ended dropped for the rest of the run). (Written
+    /// only when set, so that fingerprints of scenarios that do not set it stay as they were.)
     #[serde(skip_serializing_if = "is_false")]
     pub pair_evidence: bool,
 }
@@ -452,6 +455,12 @@ pub struct Hybrid {
     pair_spread: Vec<f64>,
     pair_column: Vec<f64>,
     pair_q: Vec<f64>,
+    /// Per joint, for its encoder and its tachometer: this tick's log-likelihood of the
+    /// reading under the contest's side that holds the sensor failed, restarted now as
+    /// healthy (its prediction, with the sensor's noise), less that under the "neither"
+    /// side's prediction (NaN without a reading): what the reading says about "the sensor
+    /// failed and has recovered" against "it never failed" (`weigh_contests`).
+    recovery_fit: Vec<f64>,
     /// Scratch: the winner's camera linearisation (outputs, Jacobian, positions), which every
     /// side of a contest is scored against with its own position of the contest's joint.
     reference_g: Vec<f64>,
@@ -557,6 +566,7 @@ impl Hybrid {
             pair_spread: vec![f64::NAN; 3 * n * layout.len()],
             pair_column: vec![0.0; n * layout.camera_outputs()],
             pair_q: vec![f64::NAN; 3 * n],
+            recovery_fit: vec![f64::NAN; 2 * n],
             reference_g: vec![0.0; layout.camera_outputs()],
             reference_jac: vec![0.0; layout.camera_outputs() * n],
             reference_q: vec![0.0; n],
@@ -682,6 +692,30 @@ impl Hybrid {
                 );
             }
             self.slope_age[i] += 1;
+            // Before the sides see this tick's readings: does the encoder's (the
+            // tachometer's) reading fit the side that holds it failed, as if it had recovered
+            // now, as well as it fits "neither"? Both at the sensor's nominal noise.
+            self.hypothesis_variances(js[2], input);
+            for (pair, side) in [(0, 0), (1, 1)] {
+                let c = if pair == 0 {
+                    self.layout.index(Channel::Encoder(i))
+                } else {
+                    self.layout.index(Channel::Tachometer(i))
+                };
+                let noise = self.variances[c];
+                let fit = |f: &Ekf, y: f64| {
+                    let s = f.projected_variance(c) + noise;
+                    let nu = y - f.predicted(c);
+                    -0.5 * (nu * nu / s + s.ln())
+                };
+                self.recovery_fit[2 * i + pair] = match input.readings.get(c) {
+                    Some(y) if noise.is_finite() && noise > 0.0 => {
+                        fit(&self.contest_filters[3 * i + side], y)
+                            - fit(&self.contest_filters[3 * i + 2], y)
+                    }
+                    _ => f64::NAN,
+                };
+            }
             // Taken out while the sides' filters are updated (no allocation).
             let (g, columns) = (
                 std::mem::take(&mut self.reference_g),
@@ -796,6 +830,19 @@ impl Hybrid {
                 let reach = self.contest_reach[3 * i + p];
                 ll[k] = ll[k].max(best - (0.5 * reach + 3.0 * reach.sqrt()));
             }
+            // "Neither" includes "the sensor the leading side blames failed and has
+            // recovered now": the leader's camera evidence so far, one switch (the switching
+            // prior), and what this tick's reading says against a sensor healthy from now on.
+            // The contest decides which sensor failed; whether one still has failed, once the
+            // readings agree again, is the bank's (docs/method.md, "Pair evidence").
+            let lead = if ll[1] > ll[0] { 1 } else { 0 };
+            let fit = self.recovery_fit[2 * i + lead];
+            if fit.is_finite() {
+                let recovered = ll[lead] + self.config.switch.ln() + fit;
+                let (hi, lo) = (ll[2].max(recovered), ll[2].min(recovered));
+                ll[2] = hi + (lo - hi).exp().ln_1p();
+            }
+            let best = ll.iter().copied().fold(f64::NEG_INFINITY, f64::max);
             let v = &mut self.view;
             let total: f64 = js.iter().map(|&j| v[j]).sum();
             let w: [f64; 3] =
