@@ -457,9 +457,9 @@ pub struct Hybrid {
     pair_q: Vec<f64>,
     /// Per joint, for its encoder and its tachometer: this tick's log-likelihood of the
     /// reading under the contest's side that holds the sensor failed, restarted now as
-    /// healthy (its prediction, with the sensor's noise), less that under the "neither"
-    /// side's prediction (NaN without a reading): what the reading says about "the sensor
-    /// failed and has recovered" against "it never failed" (`weigh_contests`).
+    /// healthy (its prediction, with the sensor's noise), less that under the bank's
+    /// "neither" hypothesis (NaN without a reading): what the reading says about "the sensor
+    /// failed and has recovered" against the bank's "healthy" (`weigh_contests`).
     recovery_fit: Vec<f64>,
     /// Scratch: the winner's camera linearisation (outputs, Jacobian, positions), which every
     /// side of a contest is scored against with its own position of the contest's joint.
@@ -692,9 +692,13 @@ impl Hybrid {
                 );
             }
             self.slope_age[i] += 1;
-            // Before the sides see this tick's readings: does the encoder's (the
-            // tachometer's) reading fit the side that holds it failed, as if it had recovered
-            // now, as well as it fits "neither"? Both at the sensor's nominal noise.
+            // Does the encoder's (the tachometer's) reading fit the side that holds it failed,
+            // as if it had recovered now (its prediction, before it sees this tick's
+            // readings), as well as it fits the bank's "neither" (the hypothesis the view
+            // weighs: restarted from the winner, judged with the readings)? Both at the
+            // sensor's nominal noise. Not the contest's own "neither" filter: it has absorbed
+            // the faulty readings, so a frozen reading the joint passes would fit "recovered"
+            // far better than it, and "neither" would win while the sensor is still frozen.
             self.hypothesis_variances(js[2], input);
             for (pair, side) in [(0, 0), (1, 1)] {
                 let c = if pair == 0 {
@@ -711,7 +715,7 @@ impl Hybrid {
                 self.recovery_fit[2 * i + pair] = match input.readings.get(c) {
                     Some(y) if noise.is_finite() && noise > 0.0 => {
                         fit(&self.contest_filters[3 * i + side], y)
-                            - fit(&self.contest_filters[3 * i + 2], y)
+                            - fit(&self.bank.filters[js[2]], y)
                     }
                     _ => f64::NAN,
                 };
