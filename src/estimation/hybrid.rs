@@ -694,8 +694,9 @@ impl Hybrid {
             self.slope_age[i] += 1;
             // Does the encoder's (the tachometer's) reading fit the side that holds it failed,
             // as if it had recovered now (its prediction, before it sees this tick's
-            // readings), as well as it fits the bank's "neither" (the hypothesis the view
-            // weighs: restarted from the winner, judged with the readings)? Both at the
+            // readings), as well as it fits the bank's "neither" after this tick's update (the
+            // hypothesis the view weighs: restarted from the winner, judged with the
+            // readings)? Both at the
             // sensor's nominal noise. Not the contest's own "neither" filter: it has absorbed
             // the faulty readings, so a frozen reading the joint passes would fit "recovered"
             // far better than it, and "neither" would win while the sensor is still frozen.
