@@ -696,10 +696,10 @@ impl Hybrid {
             // as if it had recovered now (its prediction, before it sees this tick's
             // readings), as well as it fits the bank's "neither" after this tick's update (the
             // hypothesis the view weighs: restarted from the winner, judged with the
-            // readings)? Both at the
-            // sensor's nominal noise. Not the contest's own "neither" filter: it has absorbed
-            // the faulty readings, so a frozen reading the joint passes would fit "recovered"
-            // far better than it, and "neither" would win while the sensor is still frozen.
+            // readings)? Both at the sensor's nominal noise. Not the contest's own "neither"
+            // filter: it has absorbed the faulty readings, so a frozen reading the joint passes
+            // would fit "recovered" far better than it, and "neither" would win while the
+            // sensor is still frozen.
             self.hypothesis_variances(js[2], input);
             for (pair, side) in [(0, 0), (1, 1)] {
                 let c = if pair == 0 {
