@@ -700,14 +700,18 @@ impl Hybrid {
             // filter: it has absorbed the faulty readings, so a frozen reading the joint passes
             // would fit "recovered" far better than it, and "neither" would win while the
             // sensor is still frozen.
-            self.hypothesis_variances(js[2], input);
             for (pair, side) in [(0, 0), (1, 1)] {
                 let c = if pair == 0 {
                     self.layout.index(Channel::Encoder(i))
                 } else {
                     self.layout.index(Channel::Tachometer(i))
                 };
-                let noise = self.variances[c];
+                // The sensor's nominal variance (what `hypothesis_variances` gives "neither").
+                let noise = if input.precisions[c] > 0.0 {
+                    1.0 / self.nominal[c]
+                } else {
+                    f64::INFINITY
+                };
                 let fit = |f: &Ekf, y: f64| {
                     let s = f.projected_variance(c) + noise;
                     let nu = y - f.predicted(c);
