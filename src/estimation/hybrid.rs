@@ -222,13 +222,12 @@ pub struct HybridConfig {
     /// odds stay bounded. The contest decides which sensor failed, not whether one still has:
     /// "neither" includes "failed and recovered now", priced at one switch and at what this
     /// tick's reading says against a sensor healthy from now on, so a fault that ends is seen
-    /// to end. On by default (measured in docs/method.md: better on encoder drifts the camera
-    /// sees and on faults that end; its first version, scored on the sides' whole residuals,
-    /// ran a tachometer bias on a joint the camera cannot see away; its second kept an encoder
-    /// whose bias had ended dropped for the rest of the run). `false` gives the bank's
-    /// probabilities alone. (Written only when turned off, so that fingerprints of scenarios
-    /// that do not name it stay as they were.)
-    #[serde(skip_serializing_if = "is_true")]
+    /// to end. Off by default (opt-in; measured in docs/method.md: better on encoder drifts
+    /// the camera sees; its first version, scored on the sides' whole residuals, ran a
+    /// tachometer bias on a joint the camera cannot see away; its second, tried as the
+    /// default, kept an encoder whose bias had ended dropped for the rest of the run). (Written
+    /// only when set, so that fingerprints of scenarios that do not set it stay as they were.)
+    #[serde(skip_serializing_if = "is_false")]
     pub pair_evidence: bool,
 }
 
@@ -250,7 +249,7 @@ impl Default for HybridConfig {
             actuator_broad: 100.0,
             restart_ruled_out: true,
             model_error_state: true,
-            pair_evidence: true,
+            pair_evidence: false,
         }
     }
 }
@@ -323,10 +322,6 @@ impl HybridConfig {
 
 fn is_false(v: &bool) -> bool {
     !*v
-}
-
-fn is_true(v: &bool) -> bool {
-    *v
 }
 
 fn is_default_actuator_broad(v: &f64) -> bool {
