@@ -843,11 +843,15 @@ impl Hybrid {
             // recovered now": the leader's camera evidence so far, one switch (the switching
             // prior), and what this tick's reading says against a sensor healthy from now on.
             // The contest decides which sensor failed; whether one still has failed, once the
-            // readings agree again, is the bank's (docs/method.md, "Pair evidence").
+            // readings agree again, is the bank's (docs/method.md, "Pair evidence"): the
+            // reading can take the contest's evidence against "neither" down to one switch,
+            // never below it (a reading that fits the leader better than the bank's
+            // "neither", which has absorbed faulty readings, is one garbage value that landed
+            // near the joint, not a recovery; only the bank's own odds may readmit).
             let lead = if ll[1] > ll[0] { 1 } else { 0 };
             let fit = self.recovery_fit[2 * i + lead];
             if fit.is_finite() {
-                let recovered = ll[lead] + self.config.switch.ln() + fit;
+                let recovered = ll[lead] + self.config.switch.ln() + fit.min(0.0);
                 let (hi, lo) = (ll[2].max(recovered), ll[2].min(recovered));
                 ll[2] = hi + (lo - hi).exp().ln_1p();
             }
