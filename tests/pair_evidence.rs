@@ -233,20 +233,20 @@ fn pair_evidence_takes_back_a_sensor_whose_fault_ended() {
 /// A reading that fits the contest's leader better than the bank's "neither" is not a recovery
 /// when the sensor returns garbage: one value in a thousand lands near the joint, and the bank's
 /// "neither", having absorbed the garbage, sits far from it. The twenty-ninth session's form let
-/// such a reading raise "neither" above the leader and readmitted the encoder for 3602 of the
-/// 6800 ticks after 8.2 s here (the actuator campaign's Panda encoder-4 garbage cell ended 0.50 rad
-/// off); the reading may now take the contest's evidence against "neither" down to one switch,
-/// never below, and the encoder stays dropped, as without the option.
+/// such a reading raise "neither" above the leader (found on the actuator campaign's Panda
+/// encoder-4 garbage cell, 0.50 rad off; traced on the paper arm); here, on a generated arm
+/// apart from both, it readmitted the encoder for 2734 of the 6800 ticks after 8.2 s. The
+/// reading may now take the contest's evidence against "neither" down to one switch, never
+/// below, and the encoder stays dropped, as without the option.
 #[test]
 fn pair_evidence_keeps_a_garbage_encoder_dropped() {
-    let paper = common::with_faults(
-        "paper_healthy.toml",
-        &[
-            "[[faults]]\nchannel = \"enc1\"\nkind = \"garbage\"\nlow = -3.0\nhigh = 3.0\nstart = 8.0",
-        ],
-        &["plant.engine=\"articulated\"", "hybrid.pair_evidence=true"],
+    let tmp = tempfile::tempdir().unwrap();
+    let path = arm_with(
+        tmp.path(),
+        "garbage",
+        "[[faults]]\nchannel = \"enc1\"\nkind = \"garbage\"\nlow = -3.0\nhigh = 3.0\nstart = 8.0\n",
     );
-    let (r, rec) = run_recorded(&paper, Method::Hybrid, 5, None);
+    let (r, rec) = run_recorded(&setup(&path, true), Method::Hybrid, 11, None);
     let nominal = common::at(&rec, "precision_enc1", 7.9);
     let c = rec.column("precision_enc1").unwrap();
     let readmitted = rec
@@ -255,7 +255,7 @@ fn pair_evidence_keeps_a_garbage_encoder_dropped() {
         .filter(|row| row[0] >= 8.2 && row[c] > 1e-3 * nominal)
         .count();
     eprintln!(
-        "paper arm, enc1 garbage: {readmitted} ticks readmitted after 8.2 s, final error {:.1e}",
+        "arm52006, enc1 garbage: {readmitted} ticks readmitted after 8.2 s, final error {:.1e}",
         r.max_final_error
     );
     assert_eq!(readmitted, 0, "the garbage encoder was readmitted");
