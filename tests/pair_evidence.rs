@@ -1,4 +1,4 @@
-//! `hybrid.pair_evidence` (opt-in; docs/method.md, "Pair evidence"): an encoder drift on a
+//! `hybrid.pair_evidence` (on by default; docs/method.md, "Pair evidence"): an encoder drift on a
 //! joint the camera sees moderately is blamed on the encoder once the camera's evidence, kept
 //! over the fault's life, outweighs the bank's per-tick odds; without it the hybrid blames the
 //! tachometer and the belief follows the drifting encoder. Checked on a generated arm from the
@@ -108,11 +108,12 @@ fn pair_evidence_blames_a_drifting_encoder_the_camera_sees_and_keeps_the_rest() 
     assert!(h.max_final_error < 0.01, "{:?}", h.final_error_per_joint);
 }
 
-/// Off (the default), the option changes nothing: a run is that of a scenario that does not
-/// name it, tick for tick.
+/// On is the default: a run of a scenario that does not name the option is that of one that
+/// sets it, tick for tick, and turning it off is written in the resolved scenario (so its
+/// fingerprint differs) and changes the run.
 #[test]
-fn pair_evidence_off_is_the_default_and_leaves_runs_unchanged() {
-    assert!(!aift::estimation::hybrid::HybridConfig::default().pair_evidence);
+fn pair_evidence_on_is_the_default_and_off_is_written() {
+    assert!(aift::estimation::hybrid::HybridConfig::default().pair_evidence);
     let tmp = tempfile::tempdir().unwrap();
     let drift = arm_with(
         tmp.path(),
@@ -127,9 +128,15 @@ fn pair_evidence_off_is_the_default_and_leaves_runs_unchanged() {
         .unwrap();
         aift::scenario::RunSetup::prepare(loaded).unwrap()
     };
+    let on = setup(&drift, true);
     let off = setup(&drift, false);
+    let written = |s: &aift::scenario::RunSetup| toml::to_string(s.scenario()).unwrap();
+    assert!(!written(&plain).contains("pair_evidence"));
+    assert!(!written(&on).contains("pair_evidence"));
+    assert!(written(&off).contains("pair_evidence = false"));
     let (a, ta) = run_recorded(&plain, Method::Hybrid, 3, None);
-    let (b, tb) = run_recorded(&off, Method::Hybrid, 3, None);
+    let (b, tb) = run_recorded(&on, Method::Hybrid, 3, None);
+    let (c, tc) = run_recorded(&off, Method::Hybrid, 3, None);
     assert_eq!(a.final_error_per_joint, b.final_error_per_joint);
     // Bit for bit (a missing reading is recorded as NaN).
     let bits = |rows: &[Vec<f64>]| -> Vec<Vec<u64>> {
@@ -140,6 +147,12 @@ fn pair_evidence_off_is_the_default_and_leaves_runs_unchanged() {
     assert!(
         bits(&ta.rows) == bits(&tb.rows),
         "the recorded trajectories differ"
+    );
+    assert!(
+        bits(&ta.rows) != bits(&tc.rows),
+        "turning the option off changed nothing: {:?} and {:?}",
+        a.final_error_per_joint,
+        c.final_error_per_joint
     );
 }
 

@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Reruns a campaign keeping the runs of the methods that did not change.
 
-Usage: tools/reuse-runs.py --from OLD_FOLDER --methods M1,M2 -- aift campaign ARGS --out NEW
+Usage: tools/reuse-runs.py --from OLD_FOLDER --methods M1,M2 [--rerun-kinds K1,K2
+       --rerun-methods M1] -- aift campaign ARGS --out NEW
 
 For regenerating results after a change that moves some methods' runs and provably not the
 others' (a default of the u-AIC's prior moves the oracle and the hybrid, not the Kalman
@@ -10,7 +11,10 @@ header (which names the campaign, its fingerprint and this build), writes into t
 runs of the named methods from OLD_FOLDER/records.json (the same campaign file, methods and
 seeds: its configuration digest must match), and runs the command again, which resumes from the
 journal and runs only the other jobs (docs/campaigns.md, "Resuming"). Reaching tasks hold every
-method's run, so they are kept only when every method is named.
+method's run, so they are kept only when every method is named. With --rerun-kinds, the runs
+of --rerun-methods in cells of those fault kinds are rerun though the methods are named: for a
+change that provably moves only runs of some kinds (one that acts only on ticks with a missing
+reading moves only dropout cells).
 
 The kept runs are the old build's: use it only for methods whose code and settings the change
 does not touch, and check it (rerun a sample in full: the rows must be byte-identical). It
@@ -36,6 +40,13 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--from", dest="old", required=True, help="a finished campaign folder")
     ap.add_argument("--methods", required=True, help="methods whose runs are kept, comma-separated")
+    ap.add_argument(
+        "--rerun-kinds",
+        default="",
+        help="fault kinds (campaign.csv's `kind`, comma-separated) whose cells are rerun for "
+        "--rerun-methods even though those methods are kept elsewhere",
+    )
+    ap.add_argument("--rerun-methods", default="", help="methods --rerun-kinds applies to")
     ap.add_argument("command", nargs=argparse.REMAINDER, help="-- aift campaign ... --out NEW")
     a = ap.parse_args()
     cmd = a.command[1:] if a.command[:1] == ["--"] else a.command
@@ -81,6 +92,29 @@ def main():
     if unknown:
         sys.exit(f"reuse-runs: {a.old} has no runs of {sorted(unknown)}")
 
+    # Cells rerun for some methods: each run's cell kind from the old folder's campaign.csv,
+    # whose run rows are in job order (checked run by run).
+    rerun_kinds = {k for k in a.rerun_kinds.split(",") if k}
+    rerun_methods = {m for m in a.rerun_methods.split(",") if m}
+    if bool(rerun_kinds) != bool(rerun_methods):
+        sys.exit("reuse-runs: --rerun-kinds and --rerun-methods go together")
+    rerun_jobs = set()
+    if rerun_kinds:
+        import csv
+
+        with open(os.path.join(a.old, "campaign.csv")) as f:
+            rows = [r for r in csv.DictReader(f) if r["row"] == "run"]
+        runs = sorted(old["runs"], key=lambda r: r["job"])
+        if len(rows) != len(runs):
+            sys.exit(f"reuse-runs: {a.old}/campaign.csv has {len(rows)} runs, records.json {len(runs)}")
+        for row, r in zip(rows, runs):
+            if row["method"] != r["method"] or int(row["seed"]) != r["seed"]:
+                sys.exit(f"reuse-runs: {a.old}/campaign.csv's runs are not in job order (job {r['job']})")
+            if row["kind"] in rerun_kinds and r["method"] in rerun_methods:
+                rerun_jobs.add(r["job"])
+        print(f"reuse-runs: {len(rerun_jobs)} runs of {sorted(rerun_methods)} in "
+              f"{sorted(rerun_kinds)} cells rerun", file=sys.stderr)
+
     with open(journal) as f:
         lines = f.readlines()
     # Drop a torn last line; note the jobs the stopped run finished.
@@ -90,7 +124,7 @@ def main():
     added = 0
     entries = []
     for r in old["runs"]:
-        if r["method"] in keep and r["job"] not in done:
+        if r["method"] in keep and r["job"] not in done and r["job"] not in rerun_jobs:
             entries.append({"job": r["job"], "seconds": 0.0, "run": r})
     by_job = {}
     for r in old.get("reaching", []):

@@ -221,13 +221,17 @@ pub struct HybridConfig {
     /// evidence, which for a drift grows with the cube of the time where the bank's per-tick
     /// odds stay bounded. The contest decides which sensor failed, not whether one still has:
     /// "neither" includes "failed and recovered now", priced at one switch and at what this
-    /// tick's reading says against a sensor healthy from now on, so a fault that ends is seen
-    /// to end. Off by default (opt-in; measured in docs/method.md: better on encoder drifts
-    /// the camera sees; its first version, scored on the sides' whole residuals, ran a
-    /// tachometer bias on a joint the camera cannot see away; its second, tried as the
-    /// default, kept an encoder whose bias had ended dropped for the rest of the run). (Written
-    /// only when set, so that fingerprints of scenarios that do not set it stay as they were.)
-    #[serde(skip_serializing_if = "is_false")]
+    /// tick's reading says against a sensor healthy from now on (never more than one switch:
+    /// a reading can lift the penalty on "neither", never outbid the bank), so a fault that
+    /// ends is seen to end. On by default since 2026-12-08 (measured in docs/method.md: better
+    /// on encoder drifts the camera sees and on faults that end; its first version, scored on
+    /// the sides' whole residuals, ran a tachometer bias on a joint the camera cannot see away;
+    /// its second kept an encoder whose bias had ended dropped for the rest of the run; its
+    /// third, uncapped, readmitted a garbage encoder whenever a value landed near the joint).
+    /// `false` gives the bank's
+    /// probabilities alone. (Written only when turned off, so that fingerprints of scenarios
+    /// that do not name it stay as they were.)
+    #[serde(skip_serializing_if = "is_true")]
     pub pair_evidence: bool,
 }
 
@@ -249,7 +253,7 @@ impl Default for HybridConfig {
             actuator_broad: 100.0,
             restart_ruled_out: true,
             model_error_state: true,
-            pair_evidence: false,
+            pair_evidence: true,
         }
     }
 }
@@ -322,6 +326,10 @@ impl HybridConfig {
 
 fn is_false(v: &bool) -> bool {
     !*v
+}
+
+fn is_true(v: &bool) -> bool {
+    *v
 }
 
 fn is_default_actuator_broad(v: &f64) -> bool {
@@ -1335,12 +1343,28 @@ impl Hybrid {
             for (j, r) in self.restarted.iter_mut().enumerate() {
                 if self.restart_candidate[j] {
                     r.predict_scaled(&transition, |i| scale[j * n + i]);
-                    r.linearise();
                 }
             }
             self.bank.switch(self.config.switch);
         }
         self.bank.linearise();
+        // A restart starts from the winner's mean, so every candidate's (and the winner's)
+        // joint positions are the same after the prediction: one GP evaluation serves them all.
+        for j in 0..h {
+            if self.restart_candidate[j] {
+                let (done, rest) = self.restarted.split_at_mut(j);
+                let (filters, active, candidate) = (
+                    &self.bank.filters,
+                    &self.bank.active,
+                    &self.restart_candidate,
+                );
+                let sources = (0..h)
+                    .filter(|&k| active[k])
+                    .map(|k| &filters[k])
+                    .chain((0..j).filter(|&k| candidate[k]).map(|k| &done[k]));
+                rest[0].linearise_from(sources);
+            }
+        }
         for j in 0..h {
             if self.bank.active[j] {
                 self.hypothesis_variances(j, input);

@@ -463,6 +463,22 @@ impl Ekf {
         self.x_pred.copy_from(&self.x);
     }
 
+    /// [`Self::linearise`], taking the GP's values from the first of `sources` linearised at
+    /// exactly this filter's joint positions (bit for bit) instead of evaluating it again: the
+    /// result is the same bits. Every source must have been linearised this tick.
+    pub fn linearise_from<'a>(&mut self, sources: impl IntoIterator<Item = &'a Ekf>) {
+        let n = self.n();
+        let same = |d: &&Ekf| (0..n).all(|i| d.x_pred[i].to_bits() == self.x[i].to_bits());
+        match sources.into_iter().find(same) {
+            Some(d) => {
+                self.g.copy_from_slice(&d.g);
+                self.jac.copy_from_slice(&d.jac);
+                self.x_pred.copy_from(&self.x);
+            }
+            None => self.linearise(),
+        }
+    }
+
     /// The prediction of channel c at the current mean (camera: first order about the
     /// linearisation point).
     pub(crate) fn predicted(&self, c: usize) -> f64 {
@@ -1242,6 +1258,44 @@ mod tests {
     /// sample covariance of the encoder/tachometer innovations matches the filter's predicted S
     /// (a full 4x4 block, cross terms included) and each camera channel's normalised innovation
     /// squared averages 1.
+    /// `linearise_from` takes the GP's values from a source at exactly the same joint
+    /// positions (the same bits as evaluating it), and evaluates the GP itself when no source
+    /// is: one 1e-9 rad apart (within the bank's shared-linearisation distance) is not the same
+    /// point.
+    #[test]
+    fn linearising_from_an_identical_point_is_linearising() {
+        let layout = ChannelLayout::new(2, CameraModel::Pinhole);
+        let filter_at = |q: [f64; 2]| {
+            let mut f = Ekf::new(toy_observation(layout), 1e-3);
+            f.x[0] = q[0];
+            f.x[1] = q[1];
+            f.x[2] = 0.3;
+            f
+        };
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        let mut source = filter_at([0.2, -0.4]);
+        source.linearise();
+        let mut own = filter_at([0.2, -0.4]);
+        own.linearise();
+        let mut shared = filter_at([0.2, -0.4]);
+        shared.x[3] = 7.0; // velocities do not enter the camera
+        shared.linearise_from([&source]);
+        assert_eq!(bits(&shared.g), bits(&own.g));
+        assert_eq!(bits(&shared.jac), bits(&own.jac));
+        assert_eq!(bits(shared.x_pred.as_slice()), bits(shared.x.as_slice()));
+        // Not the same point: evaluated, not copied.
+        let mut near = filter_at([0.2 + 1e-9, -0.4]);
+        near.linearise_from([&source]);
+        let mut near_own = filter_at([0.2 + 1e-9, -0.4]);
+        near_own.linearise();
+        assert_eq!(bits(&near.g), bits(&near_own.g));
+        assert_ne!(bits(&near.g), bits(&source.g));
+        // No source: evaluated.
+        let mut alone = filter_at([0.2, -0.4]);
+        alone.linearise_from(std::iter::empty());
+        assert_eq!(bits(&alone.g), bits(&own.g));
+    }
+
     #[test]
     fn innovation_covariance_matches_monte_carlo() {
         let layout = ChannelLayout::new(2, CameraModel::Pinhole);
