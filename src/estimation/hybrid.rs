@@ -214,7 +214,7 @@ pub struct HybridConfig {
     /// holds exactly one of a joint's two sensors failed (its encoder or its tachometer), a
     /// contest between "the encoder failed", "the tachometer failed" and "neither" (all else
     /// as the winner) runs three filters of its own, never restarted from the winner, and keeps
-    /// the camera's evidence between them over the contest's life: only what the camera
+    /// the camera's evidence between them over the ticks both sensors speak: only what the camera
     /// model's column of that joint says, with its constant offset and its own slope
     /// uncertainty marginalised out, and never more than the camera could resolve between the
     /// sides; the hybrid decides with the bank's probabilities of the three times that
@@ -469,6 +469,9 @@ pub struct Hybrid {
     /// "neither" hypothesis (NaN without a reading): what the reading says about "the sensor
     /// failed and has recovered" against the bank's "healthy" (`weigh_contests`).
     recovery_fit: Vec<f64>,
+    /// Per joint: whether both of its sensors gave a reading this tick (a contest gathers
+    /// camera evidence only then: `weigh_contests`).
+    pair_heard: Vec<bool>,
     /// Scratch: the winner's camera linearisation (outputs, Jacobian, positions), which every
     /// side of a contest is scored against with its own position of the contest's joint.
     reference_g: Vec<f64>,
@@ -575,6 +578,7 @@ impl Hybrid {
             pair_column: vec![0.0; n * layout.camera_outputs()],
             pair_q: vec![f64::NAN; 3 * n],
             recovery_fit: vec![f64::NAN; 2 * n],
+            pair_heard: vec![false; n],
             reference_g: vec![0.0; layout.camera_outputs()],
             reference_jac: vec![0.0; layout.camera_outputs() * n],
             reference_q: vec![0.0; n],
@@ -733,6 +737,11 @@ impl Hybrid {
                     _ => f64::NAN,
                 };
             }
+            let heard = |c: Channel| {
+                let c = self.layout.index(c);
+                input.precisions[c] > 0.0 && input.readings.get(c).is_some()
+            };
+            self.pair_heard[i] = heard(Channel::Encoder(i)) && heard(Channel::Tachometer(i));
             // Taken out while the sides' filters are updated (no allocation).
             let (g, columns) = (
                 std::mem::take(&mut self.reference_g),
@@ -804,7 +813,12 @@ impl Hybrid {
                 let spread: [f64; 3] =
                     std::array::from_fn(|k| self.pair_spread[(3 * i + k) * m + c]);
                 let column = self.pair_column[i * r + o];
-                if z.iter().chain(&spread).chain(q).all(|x| x.is_finite()) {
+                // Only while both of the joint's sensors speak: the contest weighs two
+                // explanations of a disagreement between them. With one silent there is none;
+                // the sides' camera residuals then only say how far their filters have drifted
+                // apart, which favours the side with the freer velocity (docs/method.md, "Pair
+                // evidence", a silent sensor).
+                if self.pair_heard[i] && z.iter().chain(&spread).chain(q).all(|x| x.is_finite()) {
                     let anchor = self.slope_anchor[i];
                     for k in 0..3 {
                         let res = z[k];
