@@ -228,9 +228,8 @@ pub struct HybridConfig {
     /// the sides' whole residuals, ran a tachometer bias on a joint the camera cannot see away;
     /// its second kept an encoder whose bias had ended dropped for the rest of the run; its
     /// third, uncapped, readmitted a garbage encoder whenever a value landed near the joint).
-    /// `false` gives the bank's
-    /// probabilities alone. (Written only when turned off, so that fingerprints of scenarios
-    /// that do not name it stay as they were.)
+    /// `false` gives the bank's probabilities alone. (Written only when turned off, so that
+    /// fingerprints of scenarios that do not name it stay as they were.)
     #[serde(skip_serializing_if = "is_true")]
     pub pair_evidence: bool,
 }

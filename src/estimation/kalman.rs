@@ -1252,12 +1252,6 @@ mod tests {
         }
     }
 
-    /// The EKF's innovation covariance S = H P H' + R against a Monte Carlo estimate: a 2-joint
-    /// system that is exactly the filter's model (white acceleration noise, encoders, tachometers
-    /// and a camera that is the GP's mean plus white noise), 400 runs; from tick 300 on, the
-    /// sample covariance of the encoder/tachometer innovations matches the filter's predicted S
-    /// (a full 4x4 block, cross terms included) and each camera channel's normalised innovation
-    /// squared averages 1.
     /// `linearise_from` takes the GP's values from a source at exactly the same joint
     /// positions (the same bits as evaluating it), and evaluates the GP itself when no source
     /// is: one 1e-9 rad apart (within the bank's shared-linearisation distance) is not the same
@@ -1296,6 +1290,12 @@ mod tests {
         assert_eq!(bits(&alone.g), bits(&own.g));
     }
 
+    /// The EKF's innovation covariance S = H P H' + R against a Monte Carlo estimate: a 2-joint
+    /// system that is exactly the filter's model (white acceleration noise, encoders, tachometers
+    /// and a camera that is the GP's mean plus white noise), 400 runs; from tick 300 on, the
+    /// sample covariance of the encoder/tachometer innovations matches the filter's predicted S
+    /// (a full 4x4 block, cross terms included) and each camera channel's normalised innovation
+    /// squared averages 1.
     #[test]
     fn innovation_covariance_matches_monte_carlo() {
         let layout = ChannelLayout::new(2, CameraModel::Pinhole);
